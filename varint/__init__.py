@@ -1,0 +1,23 @@
+"""varint: structure-preserving variational integrator for flexible, expandable tubes conveying fluid.
+
+Public API::
+
+    scene = varint.load_scene("examples/rubber_tube_pulse.toml")
+    model = varint.build_model(scene)
+    sim = varint.Simulation(model)
+    sim.step(); sim.monitors(); sim.fields()
+    varint.run_scene(scene, "out.h5")
+
+The discrete Lagrangian and its stationarity conditions are in docs/theory.md.
+"""
+
+__version__ = "0.1.0"
+
+from .errors import OutputError, SceneError, SolverError, VarintError  # noqa: E402
+from .model import Model, build_model  # noqa: E402
+from .runner import run_scene  # noqa: E402
+from .scene import Scene, load_scene, parse_scene  # noqa: E402
+from .stepper import Simulation, State  # noqa: E402
+
+__all__ = ["__version__", "load_scene", "parse_scene", "Scene", "build_model", "Model", "Simulation", "State",
+           "run_scene", "VarintError", "SceneError", "SolverError", "OutputError"]

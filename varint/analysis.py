@@ -1,0 +1,110 @@
+"""Linear analysis: normal modes of the discrete model and the analytic dispersion relation.
+
+:func:`modes` linearises the *discrete* Lagrangian about a configuration: the
+stiffness is the Hessian of the potential in the unknowns, the mass the
+lumped diagonal M; algebraic unknowns (quasistatic wall, pressure multipliers)
+are condensed statically.  :func:`dispersion_branches` is the continuum
+relation derived in docs/theory.md §6; it is independent of the lattice.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from .errors import VarintError
+
+__all__ = ["linearization", "modes", "dispersion_branches", "webster_frequencies"]
+
+
+def linearization(model, z=None):
+    """Mass (nq,) and condensed stiffness (nq, nq), dense, about z (default: the initial state)."""
+    if z is None:
+        z = np.concatenate([model.q_init, model.lam_init])
+    H = model.hessian(model.config(z))
+    K = (model.B.T @ H @ model.B).toarray() if sp.issparse(H) else model.B.T @ H @ model.B
+    nq = model.nq
+    Kqq = K[:nq, :nq]
+    if model.nlam:
+        Kql, Kll = K[:nq, nq:], K[nq:, nq:]
+        Kqq = Kqq - Kql @ np.linalg.solve(Kll, Kql.T)
+    return model.mass.copy(), 0.5 * (Kqq + Kqq.T)
+
+
+def modes(model, count=20, z=None, vectors=False):
+    """Lowest eigenfrequencies of the linearised model.
+
+    Returns a list of ``{"frequency": omega [rad/s], "growth_rate": sigma [1/s]}``
+    sorted by frequency (an unstable mode has frequency 0 and sigma > 0);
+    with ``vectors`` the mode shapes (nq, count) are returned too.
+    """
+    if model.nq > 6000:
+        raise VarintError("modes: the dense eigen-solver is limited to 6000 inertial unknowns")
+    M, K = linearization(model, z)
+    w2, X = sla.eigh(K, np.diag(M))
+    order = np.argsort(w2)
+    w2, X = w2[order], X[:, order]
+    res = []
+    for lam in w2[:count]:
+        # round-off sized negative eigenvalues are neutral modes, not instabilities
+        if lam >= -1e-10 * max(abs(w2[-1]), 1.0):
+            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
+        else:
+            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
+    res.sort(key=lambda m: m["frequency"])
+    return (res, X[:, :count]) if vectors else res
+
+
+def dispersion_branches(k, c0, rho0, R0, a, beta1, beta2):
+    """Angular frequencies (low, high) of small waves exp(i(ks - wt)) in the expandable tube.
+
+    From docs/theory.md §6:  (a/c0^2) w^4 - [(b/c0^2) + 4 pi rho0 + a k^2] w^2 + k^2 b = 0,
+    b = beta2 + beta1 k^2, about rest at p = p_ext and R = R0.  ``c0`` is the sound
+    speed of the fluid (math.inf for an incompressible liquid).  With a = 0 only
+    the low (acoustic/Moens-Korteweg) branch exists and ``high`` is nan.
+    """
+    k = np.asarray(k, dtype=float)
+    b = beta2 + beta1 * k * k
+    inv_c2 = 0.0 if math.isinf(c0) else 1.0 / c0 ** 2
+    B = b * inv_c2 + 4 * math.pi * rho0 + a * k * k
+    C = k * k * b
+    A = a * inv_c2
+    if A == 0.0:
+        return np.sqrt(C / B), np.full_like(k, np.nan)
+    disc = np.sqrt(B * B - 4 * A * C)
+    # the small root without cancellation
+    lo = 2 * C / (B + disc)
+    hi = (B + disc) / (2 * A)
+    return np.sqrt(lo), np.sqrt(hi)
+
+
+def webster_frequencies(area, L, c, count, omega_max=None):
+    """Closed-closed acoustic frequencies of Webster's horn equation (A p')' + (w/c)^2 A p = 0.
+
+    Shooting with scipy's ``solve_ivp`` from p(0) = 1, p'(0) = 0; roots of p'(L)
+    in w bracketed on a fine grid and refined with ``brentq``.  Independent of
+    the varint lattice: ``area`` is any callable A(s).
+    """
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    def end_slope(w):
+        def rhs(s, y):  # y = (p, A p')
+            return [y[1] / area(s), -(w / c) ** 2 * area(s) * y[0]]
+
+        sol = solve_ivp(rhs, (0.0, L), [1.0, 0.0], rtol=1e-12, atol=1e-14, method="DOP853")
+        return sol.y[1, -1]
+
+    omega_max = omega_max or (count + 1.5) * math.pi * c / L
+    grid = np.linspace(1e-6, omega_max, 40 * (count + 2))
+    vals = [end_slope(w) for w in grid]
+    roots = []
+    for (w0, f0), (w1, f1) in zip(zip(grid, vals), zip(grid[1:], vals[1:])):
+        if f0 == 0 or f0 * f1 < 0:
+            roots.append(brentq(end_slope, w0, w1, xtol=1e-13, rtol=1e-14))
+        if len(roots) == count:
+            break
+    return np.array(roots)

@@ -1,0 +1,158 @@
+"""Command line: ``varint run | check | info | plot | modes``.
+
+Every failure the user can cause (bad scene, unreadable file, Newton failure)
+prints one line per problem prefixed ``varint: error:`` and exits non-zero;
+nothing else is caught, so a traceback always means a bug in varint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+import numpy as np
+
+from . import __version__
+from .errors import VarintError
+
+__all__ = ["main"]
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def cmd_run(args):
+    from .runner import default_output, run_scene
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    out = args.output or default_output(scene, args.scene)
+    sim = run_scene(scene, out, resume=args.resume, progress=None if not args.quiet else False)
+    st = sim.state
+    print(f"wrote {out}: {st.n} steps to t = {st.t:.6g} s ({sim.stats.total_iterations} Newton iterations, "
+          f"{sim.stats.total_jacobians} Jacobians)")
+    return 0
+
+
+def cmd_check(args):
+    from .model import build_model
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    model = build_model(scene)
+    d = {"title": scene.title, **model.describe(),
+         "time": dict(scene.time), "environment": {k: v for k, v in scene.environment.items()}}
+    if args.json:
+        print(json.dumps(_jsonable(d), indent=2))
+        return 0
+    print(f"scene: {args.scene}\n  title: {scene.title}")
+    print(f"  effects: {', '.join(d['effects'])}")
+    print(f"  terms of the discrete Lagrangian: {', '.join(d['terms'])}")
+    print("  unknowns: " + ", ".join(f"{k} ({v})" for k, v in d["unknowns"].items())
+          + f"; total {d['unknowns_total']} ({d['inertial_unknowns']} inertial, {d['algebraic_unknowns']} algebraic)")
+    print(f"  expected invariants: {', '.join(d['invariants'])}")
+    lat = d["lattice"]
+    print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, "
+          f"{'periodic' if lat['periodic'] else 'closed'} ends")
+    if "wall" in d:
+        print("  wall: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["wall"].items()))
+    if "fluid" in d:
+        print("  fluid: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["fluid"].items()))
+    t = scene.time
+    print(f"  time: scheme = {t.scheme}, step = {t.step:g} s, end = {t.end:g} s, newton_tol = {t.newton_tol:g}")
+    return 0
+
+
+def cmd_info(args):
+    from .io import summary
+
+    d = summary(args.file)
+    if args.json:
+        print(json.dumps(_jsonable(d), indent=2))
+    else:
+        for k, v in d.items():
+            print(f"{k}: {v}")
+    return 0
+
+
+def cmd_plot(args):
+    from .plotting import plot_run
+
+    for p in plot_run(args.file, args.outdir):
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_modes(args):
+    from .analysis import modes
+    from .model import build_model
+    from .scene import load_scene
+
+    model = build_model(load_scene(args.scene))
+    res = modes(model, count=args.count)
+    if args.json:
+        print(json.dumps(_jsonable({"modes": res})))
+    else:
+        for i, m in enumerate(res):
+            print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s")
+    return 0
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="varint", description="Variational integrator for expandable tubes conveying fluid.")
+    p.add_argument("--version", action="version", version=f"varint {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("run", help="run a scene, writing an HDF5 run file")
+    r.add_argument("scene")
+    r.add_argument("-o", "--output", help="run file (default: [output].file or SCENE.h5)")
+    r.add_argument("--resume", action="store_true", help="continue an interrupted run file")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_run)
+    c = sub.add_parser("check", help="validate a scene; print effects, unknowns and invariants")
+    c.add_argument("scene")
+    c.add_argument("--json", action="store_true")
+    c.set_defaults(func=cmd_check)
+    i = sub.add_parser("info", help="summarise a run file")
+    i.add_argument("file")
+    i.add_argument("--json", action="store_true")
+    i.set_defaults(func=cmd_info)
+    pl = sub.add_parser("plot", help="PNG figures of a run file's monitors and fields")
+    pl.add_argument("file")
+    pl.add_argument("-d", "--outdir", default=None, help="folder for the PNGs (default: beside the file)")
+    pl.set_defaults(func=cmd_plot)
+    m = sub.add_parser("modes", help="eigenfrequencies of the model linearised about the initial state")
+    m.add_argument("scene")
+    m.add_argument("--json", action="store_true")
+    m.add_argument("-n", "--count", type=int, default=20, help="number of lowest modes")
+    m.set_defaults(func=cmd_modes)
+    return p
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="varint: %(message)s")
+    try:
+        return args.func(args)
+    except VarintError as exc:
+        for line in str(exc).splitlines():
+            print(f"varint: error: {line}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("varint: interrupted; the run file holds every record written so far (continue with --resume)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

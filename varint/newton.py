@@ -1,0 +1,105 @@
+"""Newton iteration as a pure function returning its diagnostics.
+
+Modelled on scipy's Radau/BDF solvers: the factorised Jacobian is reused across
+calls (modified Newton) and refreshed only when the contraction rate says it is
+stale; divergence is detected from the rate; counts of residual evaluations,
+Jacobian evaluations and factorisations are returned so tests can bound them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["NewtonResult", "newton", "factorize"]
+
+EPS = np.finfo(float).eps
+
+
+@dataclass
+class NewtonResult:
+    converged: bool
+    z: np.ndarray
+    iterations: int
+    error: float  #: last scaled update, max |dz / scale|
+    rate: float  #: last observed contraction rate (nan if unknown)
+    factor: object  #: the factorisation in use at the end (reuse it next time)
+    n_residual: int
+    n_jacobian: int
+    message: str = ""
+
+
+class _Diagonal:
+    def __init__(self, d):
+        self.inv = 1.0 / d
+
+    def solve(self, r):
+        return self.inv * r
+
+
+def factorize(J):
+    """LU of a sparse Jacobian (or a cheap inverse when it is diagonal)."""
+    J = sp.csc_matrix(J)
+    if J.nnz == np.count_nonzero(J.diagonal()) and J.nnz == J.shape[0]:
+        return _Diagonal(J.diagonal())
+    try:
+        return spla.splu(J)
+    except RuntimeError:  # exactly singular
+        return None
+
+
+def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
+    """Solve residual(z) = 0 from z0.
+
+    Parameters
+    ----------
+    residual : callable z -> r
+    jacobian : callable z -> sparse matrix
+    scale : ndarray
+        Typical magnitude of each unknown; convergence is ``max|dz/scale| <= tol``,
+        or the update has reached round-off (``<= 8 eps max|z/scale|``).
+    factor : object, optional
+        A factorisation from an earlier call, reused until the rate degrades.
+    """
+    z = np.array(z0, dtype=np.float64, copy=True)
+    n_res = n_jac = 0
+    fresh = factor is None
+    if factor is None:
+        factor = factorize(jacobian(z))
+        n_jac += 1
+    if factor is None:
+        return NewtonResult(False, z, 0, np.inf, np.nan, None, n_res, n_jac, "singular Jacobian")
+    err_prev = None
+    rate = np.nan
+    it = 0
+    while it < max_iter:
+        r = residual(z)
+        n_res += 1
+        if not np.all(np.isfinite(r)):
+            return NewtonResult(False, z, it, np.inf, rate, factor, n_res, n_jac, "residual is not finite")
+        dz = -factor.solve(r)
+        z += dz
+        it += 1
+        err = float(np.max(np.abs(dz) / scale)) if len(z) else 0.0
+        floor = 8 * EPS * (float(np.max(np.abs(z) / scale)) if len(z) else 1.0)
+        if err <= tol or err <= floor:
+            return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac)
+        if err_prev is not None:
+            rate = err / err_prev
+            if not np.isfinite(rate) or rate > 0.5:
+                if not fresh:
+                    # stale Jacobian: refresh it here and carry on
+                    factor = factorize(jacobian(z))
+                    n_jac += 1
+                    fresh = True
+                    err_prev = None
+                    if factor is None:
+                        return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, "singular Jacobian")
+                    continue
+                if rate >= 1.0 and it >= 3:
+                    return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "diverging")
+        err_prev = err
+    return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "no convergence within max_iterations")

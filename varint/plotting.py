@@ -1,0 +1,76 @@
+"""PNG figures of a run file: monitors against time and space-time maps of p, u, R."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .io import read_run
+
+__all__ = ["plot_run"]
+
+
+def plot_run(path, outdir=None):
+    """Write ``<stem>_monitors.png`` and ``<stem>_fields.png``; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run = read_run(path)
+    t = run["time"]
+    mon, fld = run["monitors"], run["fields"]
+    stem = Path(path).stem
+    outdir = Path(outdir) if outdir else Path(path).resolve().parent
+    outdir.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    panels = [("energy", "relative energy error"), ("mass", "relative mass error"),
+              ("linear_momentum", "fluid momentum [kg m/s]"), ("newton_iterations", "Newton iterations")]
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
+    for ax, (name, label) in zip(axes.flat, panels):
+        if name not in mon:
+            ax.set_visible(False)
+            continue
+        y = mon[name]
+        if name in ("energy", "mass"):
+            y = (y - y[0]) / abs(y[0]) if y[0] != 0 else y - y[0]
+        if y.ndim == 2:
+            y = y[:, 0]
+        ax.plot(t, y, lw=1)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle(run["attrs"].get("title", stem), fontsize=10)
+    p = outdir / f"{stem}_monitors.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    written.append(p)
+
+    maps = []
+    if "fluid/pressure" in fld:
+        s = fld["fluid/s"]
+        centres = 0.5 * (s[:, 1:] + s[:, :-1])
+        maps.append(("pressure [Pa]", centres, fld["fluid/pressure"]))
+        maps.append(("velocity [m/s]", s, fld["fluid/velocity"]))
+    if "wall/R" in fld:
+        R = fld["wall/R"]
+        x = np.linspace(0.0, 1.0, R.shape[1])[None, :] * np.ones((R.shape[0], 1))
+        L = float(s[0, -1] - s[0, 0]) if "fluid/s" in fld else 1.0
+        maps.append(("R - R(t=0) [m]", x * L, R - R[0]))
+    if maps and len(t) > 1:
+        fig, axes = plt.subplots(1, len(maps), figsize=(4.2 * len(maps), 4.2), constrained_layout=True, squeeze=False)
+        for ax, (label, x, y) in zip(axes[0], maps):
+            xg = np.linspace(np.min(x[0]), np.max(x[0]), max(200, y.shape[1]))
+            img = np.array([np.interp(xg, xi, yi) for xi, yi in zip(x, y)])
+            im = ax.pcolormesh(xg, t, img, shading="auto", cmap="RdBu_r")
+            fig.colorbar(im, ax=ax)
+            ax.set_title(label, fontsize=9)
+            ax.set_xlabel("s [m]")
+            ax.set_ylabel("t [s]")
+        p = outdir / f"{stem}_fields.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
+    return written

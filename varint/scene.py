@@ -1,0 +1,464 @@
+"""Scene files: TOML text -> a validated, fully resolved :class:`Scene`.
+
+The accepted keys are declared once, in :data:`SCHEMA`; the validator, the
+``varint check`` report and ``docs/scenes.md`` (``scripts/write_scene_docs.py``)
+all read that declaration, so they cannot drift apart.  Every problem found is
+reported as one line ``key.path: what is wrong``; unknown keys are errors with
+the nearest valid key suggested.  A scene is data: nothing in it is evaluated.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+
+from .errors import SceneError
+
+__all__ = ["Key", "SCHEMA", "Scene", "load_scene", "parse_scene"]
+
+REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Key:
+    """Declaration of one scene key.
+
+    ``kind`` is one of ``float``, ``int``, ``str``, ``vec3``, ``pairs``
+    (list of [x, y] numbers) or ``strlist``.  ``low``/``high`` bound numbers,
+    ``low_open`` makes the lower bound strict.  ``choices`` restricts strings.
+    """
+
+    name: str
+    kind: str
+    default: object = REQUIRED
+    unit: str = ""
+    doc: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    choices: tuple = ()
+
+
+def _pos(name, unit, doc, default=REQUIRED):
+    return Key(name, "float", default, unit, doc, low=0.0, low_open=True)
+
+
+SHAPE_KEYS = (
+    Key("field", "str", REQUIRED, "", "quantity perturbed", choices=("pressure", "density", "velocity", "R")),
+    Key("shape", "str", REQUIRED, "", "profile of the perturbation", choices=("cosine", "gaussian", "step")),
+    Key("amplitude", "float", REQUIRED, "field unit", "added to the field (pressure: Pa, density: kg/m^3, velocity: m/s, R: m)"),
+    Key("wavelength", "float", None, "m", "cosine: amplitude*cos(2*pi*s/wavelength + phase)", low=0.0, low_open=True),
+    Key("phase", "float", 0.0, "rad", "cosine: phase"),
+    Key("center", "float", None, "m", "gaussian: amplitude*exp(-(s-center)^2/(2*width^2))"),
+    Key("width", "float", None, "m", "gaussian: standard deviation", low=0.0, low_open=True),
+    Key("from", "float", None, "m", "step: start of the interval where the amplitude is added"),
+    Key("to", "float", None, "m", "step: end of that interval"),
+)
+
+#: Every accepted key, by section.  Sub-tables are ``section.sub``; arrays of
+#: tables are marked by a trailing ``[]``.
+SCHEMA = MappingProxyType({
+    "": (Key("title", "str", REQUIRED, "", "one-line description of the scene"),),
+    "tube": (
+        _pos("length", "m", "tube length L"),
+        Key("nodes", "int", REQUIRED, "", "number of lattice nodes N+1 along the tube (N elements)", low=3),
+        _pos("radius", "m", "reference (undeformed) inner radius R0"),
+        Key("area_table", "pairs", None, "[m, m^2]", "rigid wall only: cross-section A(s) as [[s, A], ...] points, linearly interpolated; replaces the uniform pi*R0^2"),
+    ),
+    "wall": (
+        Key("model", "str", "dynamic", "", "dynamic: wall inertia a; quasistatic: a = 0, R follows the fluid", choices=("dynamic", "quasistatic")),
+        Key("law", "str", "linear", "", "wall energy F(R,R'): linear = 1/2 beta1 R'^2 + 1/2 beta2 (R-R0)^2; tube-law = Pedley-Luo form T/2 (dA/ds)^2 + f(A), f' = beta (sqrt(A)-sqrt(A0))/sqrt(A0)", choices=("linear", "tube-law")),
+        Key("a", "float", None, "kg/m", "wall inertia per unit length (default 2 pi R0 rho_s h)", low=0.0, low_open=True),
+        Key("beta1", "float", None, "N", "linear law: coefficient of R'^2 (default 2 pi K G h R0)", low=0.0),
+        Key("beta2", "float", None, "N/m^2", "linear law: coefficient of (R-R0)^2 (default 2 pi E h / (R0 (1-nu^2)))", low=0.0, low_open=True),
+        Key("stiffness", "float", None, "Pa", "tube law: beta in Phi(A) (default E h / (R0 (1-nu^2)))", low=0.0, low_open=True),
+        Key("tension", "float", 0.0, "N/m^2 * m^2", "tube law: longitudinal coefficient T of (dA/ds)^2", low=0.0),
+        Key("thickness", "float", None, "m", "wall thickness h", low=0.0, low_open=True),
+        Key("density", "float", None, "kg/m^3", "wall material density rho_s", low=0.0, low_open=True),
+        Key("youngs_modulus", "float", None, "Pa", "Young's modulus E", low=0.0, low_open=True),
+        Key("poisson_ratio", "float", 0.5, "", "Poisson ratio nu", low=0.0, high=0.5),
+        Key("shear_coefficient", "float", 5.0 / 6.0, "", "Timoshenko coefficient K in beta1 = 2 pi K G h R0", low=0.0, low_open=True),
+    ),
+    "wall.perturbation[]": SHAPE_KEYS,
+    "fluid": (
+        Key("model", "str", REQUIRED, "", "equation of state", choices=("ideal-gas", "barotropic", "incompressible")),
+        Key("gamma", "float", None, "", "ideal gas: ratio of specific heats (default 1.4); barotropic: Tait exponent (default 7.15)", low=1.0),
+        Key("density", "float", REQUIRED, "kg/m^3", "initial (reference) density", low=0.0, low_open=True),
+        Key("pressure", "float", None, "Pa", "initial pressure (required for ideal-gas and barotropic; incompressible: initial guess of the multiplier, default the external pressure)"),
+        Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube"),
+        Key("parcels", "int", REQUIRED, "", "number of fluid parcels M (labels k = 0..M)", low=2),
+        Key("gas_constant", "float", 287.05, "J/(kg K)", "ideal gas: specific gas constant (sets the entropy unit c_v = R/(gamma-1))", low=0.0, low_open=True),
+        Key("bulk_modulus", "float", None, "Pa", "barotropic: bulk modulus K = rho dp/drho at the reference density", low=0.0, low_open=True),
+    ),
+    "fluid.ends": (
+        Key("s0", "str", "closed", "", "end s = 0", choices=("closed", "periodic", "inflow")),
+        Key("sL", "str", "closed", "", "end s = L", choices=("closed", "periodic", "outflow")),
+    ),
+    "fluid.initial[]": (
+        Key("from", "float", REQUIRED, "m", "start of the region"),
+        Key("to", "float", REQUIRED, "m", "end of the region"),
+        Key("density", "float", None, "kg/m^3", "density in the region", low=0.0, low_open=True),
+        Key("pressure", "float", None, "Pa", "pressure in the region", low=0.0, low_open=True),
+        Key("velocity", "float", None, "m/s", "velocity in the region"),
+    ),
+    "fluid.perturbation[]": SHAPE_KEYS,
+    "environment": (
+        Key("external_pressure", "float", None, "Pa", "uniform pressure outside the wall (default: the fluid's initial pressure, so the reference tube is in equilibrium; 0 without fluid)"),
+        Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube lies along +x"),
+    ),
+    "time": (
+        _pos("step", "s", "time step h"),
+        _pos("end", "s", "final time"),
+        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action", choices=("midpoint", "trapezoidal")),
+        Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
+        Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
+    ),
+    "output": (
+        Key("file", "str", None, "", "HDF5 run file (default: the scene name with .h5)"),
+        Key("every", "int", 1, "", "write every this many steps", low=1),
+        Key("fields", "strlist", None, "", "field groups to write (default all of the model's): fluid, wall"),
+    ),
+})
+
+NOT_YET = {
+    "rod": "the [rod] effect (3D/planar Cosserat rod) is not available in this version; remove the section",
+    "shock_capturing": "shock capturing is not available in this version; remove the section",
+}
+
+
+class Section(dict):
+    """A resolved scene section: a dict whose keys also read as attributes."""
+
+    __getattr__ = dict.get
+
+    def __repr__(self):  # pragma: no cover - debugging aid
+        return f"Section({dict.__repr__(self)})"
+
+
+@dataclass
+class Scene:
+    """A validated scene.  Absent optional sections are ``None``."""
+
+    title: str
+    tube: Section
+    time: Section
+    output: Section
+    environment: Section
+    wall: Section | None = None
+    fluid: Section | None = None
+    text: str = ""
+    path: str | None = None
+    derived: dict = field(default_factory=dict)
+
+    @property
+    def effects(self):
+        """Names of the effects this scene switches on, in assembly order."""
+        eff = []
+        if self.wall is not None:
+            eff.append("wall")
+        if self.fluid is not None:
+            eff.append("fluid")
+        if self.external_pressure_acts:
+            eff.append("external_pressure")
+        if self.gravity_acts:
+            eff.append("gravity")
+        return eff
+
+    @property
+    def external_pressure_acts(self):
+        # p_ext only does work on a moving wall.
+        return self.wall is not None
+
+    @property
+    def gravity_acts(self):
+        # The centreline is fixed along +x: only g_x acts, and only on fluid.
+        return self.fluid is not None and self.environment.gravity[0] != 0.0
+
+
+def load_scene(path):
+    """Read and validate a scene file.  Raises :class:`SceneError`."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise SceneError("no such file", source=str(path)) from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+        raise SceneError(f"cannot read: {exc.__class__.__name__}", source=str(path)) from None
+    return parse_scene(text, source=str(path))
+
+
+def parse_scene(text, source=None):
+    """Validate scene text; returns a :class:`Scene` or raises :class:`SceneError`."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"TOML syntax error: {exc}", source=source) from None
+    v = _Validator()
+    scene = v.scene(raw)
+    if v.problems:
+        raise SceneError(v.problems, source=source)
+    scene.text = text
+    scene.path = source
+    return scene
+
+
+# ---------------------------------------------------------------------------
+# validation
+
+
+def _fmt(x):
+    return repr(x) if isinstance(x, str) else str(x)
+
+
+class _Validator:
+    def __init__(self):
+        self.problems = []
+
+    def bad(self, path, msg):
+        self.problems.append(f"{path}: {msg}")
+
+    # -- generic key checking ------------------------------------------------
+
+    def section(self, raw, schema_name, path):
+        """Check one table against its declared keys; returns a Section."""
+        keys = {k.name: k for k in SCHEMA[schema_name]}
+        subtables = {n.split(".", 1)[1].rstrip("[]") for n in SCHEMA if n.startswith(schema_name + ".") and schema_name}
+        out = Section()
+        if not isinstance(raw, dict):
+            self.bad(path or "(top level)", f"must be a table, got {type(raw).__name__}")
+            raw = {}
+        for name in raw:
+            if name not in keys and name not in subtables:
+                self.unknown(path, name, list(keys) + sorted(subtables))
+        for k in keys.values():
+            kp = f"{path}.{k.name}" if path else k.name
+            if k.name in raw:
+                out[k.name] = self.value(raw[k.name], k, kp)
+            elif k.default is REQUIRED:
+                self.bad(kp, "missing (required)")
+                out[k.name] = None
+            else:
+                out[k.name] = k.default
+        return out
+
+    def unknown(self, path, name, valid):
+        kp = f"{path}.{name}" if path else name
+        near = difflib.get_close_matches(name, valid, n=1, cutoff=0.6)
+        hint = f" (did you mean '{near[0]}'?)" if near else f" (valid: {', '.join(valid)})"
+        self.bad(kp, "unknown key" + hint)
+
+    def value(self, x, k, kp):
+        if k.kind in ("float", "int"):
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                self.bad(kp, f"must be a number, got {type(x).__name__} {_fmt(x)}")
+                return None
+            if k.kind == "int" and not isinstance(x, int):
+                if float(x).is_integer():
+                    x = int(x)
+                else:
+                    self.bad(kp, f"must be a whole number, got {x}")
+                    return None
+            if not math.isfinite(x):
+                self.bad(kp, f"must be finite, got {x}")
+                return None
+            if k.low is not None and (x <= k.low if k.low_open else x < k.low):
+                self.bad(kp, f"must be {'>' if k.low_open else '>='} {k.low:g}, got {x:g}")
+                return None
+            if k.high is not None and x > k.high:
+                self.bad(kp, f"must be <= {k.high:g}, got {x:g}")
+                return None
+            return float(x) if k.kind == "float" else int(x)
+        if k.kind == "str":
+            if not isinstance(x, str):
+                self.bad(kp, f"must be a string, got {type(x).__name__} {_fmt(x)}")
+                return None
+            if k.choices and x not in k.choices:
+                near = difflib.get_close_matches(x, k.choices, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                self.bad(kp, f"unknown value {_fmt(x)}; choose one of {', '.join(k.choices)}{hint}")
+                return None
+            return x
+        if k.kind == "vec3":
+            ok = isinstance(x, list) and len(x) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in x)
+            if not ok:
+                self.bad(kp, f"must be a list of 3 finite numbers, got {_fmt(x)}")
+                return None
+            return tuple(float(c) for c in x)
+        if k.kind == "pairs":
+            ok = isinstance(x, list) and len(x) >= 2 and all(
+                isinstance(p, list) and len(p) == 2 and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in p) for p in x)
+            if not ok:
+                self.bad(kp, "must be a list of at least 2 [s, A] number pairs")
+                return None
+            return [(float(a), float(b)) for a, b in x]
+        if k.kind == "strlist":
+            if not (isinstance(x, list) and all(isinstance(c, str) for c in x)):
+                self.bad(kp, f"must be a list of strings, got {_fmt(x)}")
+                return None
+            return list(x)
+        raise AssertionError(k.kind)  # pragma: no cover
+
+    def array_of_tables(self, raw, schema_name, path):
+        if raw is None:
+            return []
+        if not isinstance(raw, list) or not all(isinstance(t, dict) for t in raw):
+            self.bad(path, "must be an array of tables ([[...]])")
+            return []
+        return [self.section(t, schema_name, f"{path}[{i}]") for i, t in enumerate(raw)]
+
+    # -- the scene -----------------------------------------------------------
+
+    def scene(self, raw):
+        sections = {n.split(".")[0] for n in SCHEMA if n}
+        for name in raw:
+            if name in NOT_YET:
+                self.bad(name, NOT_YET[name])
+            elif name not in sections and name != "title":
+                self.unknown("", name, ["title"] + sorted(sections))
+        top = self.section({k: v for k, v in raw.items() if k == "title"}, "", "")
+        for req in ("tube", "time"):
+            if req not in raw:
+                self.bad(req, "missing section (required)")
+        tube = self.section(raw.get("tube", {}), "tube", "tube")
+        time = self.section(raw.get("time", {}), "time", "time")
+        output = self.section(raw.get("output", {}), "output", "output")
+        env = self.section(raw.get("environment", {}), "environment", "environment")
+        wall = fluid = None
+        if "wall" in raw:
+            rw = raw["wall"] if isinstance(raw["wall"], dict) else {}
+            wall = self.section({k: v for k, v in rw.items() if k != "perturbation"}, "wall", "wall")
+            wall["perturbation"] = self.array_of_tables(rw.get("perturbation"), "wall.perturbation[]", "wall.perturbation")
+            if isinstance(raw["wall"], dict) is False:
+                self.bad("wall", "must be a table")
+        if "fluid" in raw:
+            rf = raw["fluid"] if isinstance(raw["fluid"], dict) else {}
+            if not isinstance(raw["fluid"], dict):
+                self.bad("fluid", "must be a table")
+            fluid = self.section({k: v for k, v in rf.items() if k not in ("ends", "initial", "perturbation")}, "fluid", "fluid")
+            fluid["ends"] = self.section(rf.get("ends", {}), "fluid.ends", "fluid.ends")
+            fluid["initial"] = self.array_of_tables(rf.get("initial"), "fluid.initial[]", "fluid.initial")
+            fluid["perturbation"] = self.array_of_tables(rf.get("perturbation"), "fluid.perturbation[]", "fluid.perturbation")
+        scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall, fluid=fluid)
+        if not self.problems:
+            self.cross_checks(scene)
+        return scene
+
+    def cross_checks(self, sc):
+        L = sc.tube.length
+        R0 = sc.tube.radius
+        if sc.wall is None and sc.fluid is None:
+            self.bad("(scene)", "no effects: add a [fluid] and/or a [wall] section")
+        if sc.tube.area_table is not None:
+            self.check_area_table(sc.tube.area_table, L)
+            if sc.wall is not None:
+                self.bad("tube.area_table", "only for a rigid wall (a scene without [wall])")
+        if sc.time.end < sc.time.step:
+            self.bad("time.end", f"must be >= time.step ({sc.time.step:g}), got {sc.time.end:g}")
+        if sc.wall is not None:
+            self.wall_checks(sc.wall, R0, L)
+        if sc.fluid is not None:
+            self.fluid_checks(sc.fluid, L, sc)
+        algebraic = (sc.fluid is not None and sc.fluid.model == "incompressible") or (
+            sc.wall is not None and sc.wall.model == "quasistatic")
+        if sc.time.scheme == "trapezoidal" and algebraic:
+            self.bad("time.scheme", "'trapezoidal' needs every unknown to carry inertia; an incompressible fluid or a "
+                     "quasistatic wall has multipliers/algebraic unknowns: use 'midpoint'")
+        env = sc.environment
+        if env.external_pressure is None:
+            env["external_pressure"] = sc.fluid.pressure if (sc.fluid is not None and sc.fluid.pressure is not None) else 0.0
+        if sc.fluid is not None and sc.fluid.model == "incompressible" and sc.fluid.pressure is None:
+            sc.fluid["pressure"] = env.external_pressure
+        if sc.output.fields is not None:
+            valid = [g for g, on in (("fluid", sc.fluid is not None), ("wall", sc.wall is not None)) if on]
+            for f in sc.output.fields:
+                if f not in valid:
+                    self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: {', '.join(valid)}")
+        if sc.output.file is not None and not sc.output.file.strip():
+            self.bad("output.file", "must not be empty")
+
+    def check_area_table(self, table, L):
+        s = [p[0] for p in table]
+        if any(b <= a for a, b in zip(s, s[1:])):
+            self.bad("tube.area_table", "s values must be strictly increasing")
+        if s[0] > 0 or s[-1] < L:
+            self.bad("tube.area_table", f"must cover the tube [0, {L:g}], covers [{s[0]:g}, {s[-1]:g}]")
+        if any(p[1] <= 0 for p in table):
+            self.bad("tube.area_table", "areas must be > 0")
+
+    def wall_checks(self, w, R0, L):
+        material = ("thickness", "youngs_modulus")
+        if w.model == "quasistatic" and w.a is not None:
+            self.bad("wall.a", "a quasistatic wall has no inertia (a = 0); remove the key or use model = 'dynamic'")
+        if w.model == "dynamic" and w.a is None and (w.thickness is None or w.density is None):
+            self.bad("wall.a", "missing: give a, or thickness and density")
+        if w.law == "linear":
+            for k in ("stiffness",):
+                if w[k] is not None:
+                    self.bad(f"wall.{k}", "belongs to law = 'tube-law', not 'linear'")
+            if w.beta2 is None and any(w[k] is None for k in material):
+                self.bad("wall.beta2", "missing: give beta2, or thickness and youngs_modulus")
+            if w.beta1 is None and any(w[k] is None for k in material):
+                self.bad("wall.beta1", "missing: give beta1, or thickness and youngs_modulus")
+        else:
+            for k in ("beta1", "beta2"):
+                if w[k] is not None:
+                    self.bad(f"wall.{k}", "belongs to law = 'linear', not 'tube-law'")
+            if w.stiffness is None and any(w[k] is None for k in material):
+                self.bad("wall.stiffness", "missing: give stiffness, or thickness and youngs_modulus")
+        for i, p in enumerate(w.perturbation):
+            self.shape_checks(p, f"wall.perturbation[{i}]", L, allowed=("R",))
+
+    def fluid_checks(self, f, L, sc):
+        model = f.model
+        if model == "ideal-gas":
+            f["gamma"] = 1.4 if f.gamma is None else f.gamma
+            if f.gamma <= 1.0:
+                self.bad("fluid.gamma", f"must be > 1 for an ideal gas, got {f.gamma:g}")
+        elif model == "barotropic":
+            f["gamma"] = 7.15 if f.gamma is None else f.gamma
+            if f.bulk_modulus is None:
+                self.bad("fluid.bulk_modulus", "missing (required for model = 'barotropic')")
+        elif f.gamma is not None:
+            self.bad("fluid.gamma", "not used by an incompressible fluid; remove it")
+        if model != "incompressible":
+            if f.pressure is None:
+                self.bad("fluid.pressure", f"missing (required for model = '{model}')")
+            elif f.pressure <= 0 and model == "ideal-gas":
+                self.bad("fluid.pressure", f"must be > 0 for an ideal gas, got {f.pressure:g}")
+        if model != "barotropic" and f.bulk_modulus is not None:
+            self.bad("fluid.bulk_modulus", f"not used by model = '{model}'; remove it")
+        e0, e1 = f.ends.s0, f.ends.sL
+        if e0 == "inflow" or e1 == "outflow":
+            which = "fluid.ends.s0" if e0 == "inflow" else "fluid.ends.sL"
+            self.bad(which, "open ends (inflow/outflow) are not available in this version; use 'closed' or 'periodic'")
+        elif (e0 == "periodic") != (e1 == "periodic"):
+            self.bad("fluid.ends", "periodic must be set at both ends (s0 and sL)")
+        if f.parcels is not None and f.parcels > 2_000_000:
+            self.bad("fluid.parcels", f"must be <= 2000000, got {f.parcels}")
+        for i, r in enumerate(f.initial):
+            kp = f"fluid.initial[{i}]"
+            if not (0.0 <= r["from"] < r["to"] <= L):
+                self.bad(kp, f"needs 0 <= from < to <= {L:g}, got from = {r['from']:g}, to = {r['to']:g}")
+            if model == "incompressible" and (r.density is not None or r.pressure is not None):
+                self.bad(kp, "an incompressible fluid takes only velocity in initial regions")
+        allowed = ("velocity",) if model == "incompressible" else ("pressure", "density", "velocity")
+        for i, p in enumerate(f.perturbation):
+            self.shape_checks(p, f"fluid.perturbation[{i}]", L, allowed=allowed)
+
+    def shape_checks(self, p, kp, L, allowed):
+        if p.field not in allowed:
+            self.bad(f"{kp}.field", f"{_fmt(p.field)} cannot be perturbed here; choose one of {', '.join(allowed)}")
+        need = {"cosine": ("wavelength",), "gaussian": ("center", "width"), "step": ("from", "to")}[p.shape]
+        for n in need:
+            if p[n] is None:
+                self.bad(f"{kp}.{n}", f"missing (required for shape = '{p.shape}')")
+        others = {"wavelength", "center", "width", "from", "to"} - set(need)
+        for n in sorted(others):
+            if p[n] is not None:
+                self.bad(f"{kp}.{n}", f"not used by shape = '{p.shape}'")
+        if p.shape == "step" and p["from"] is not None and p["to"] is not None and not p["from"] < p["to"]:
+            self.bad(f"{kp}.to", f"must be > from ({p['from']:g}), got {p['to']:g}")

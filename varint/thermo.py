@@ -1,0 +1,96 @@
+"""Equations of state, written as the parcel internal energy psi_k(V) = m_k e(m_k / V, S_k).
+
+Only what the discrete action needs is exposed: psi, psi' = -p and
+psi'' = -dp/dV = rho (dp/drho) / V, vectorised over parcels.  Thermodynamic
+identities (paper eq. ``thermodynamics``): p = rho^2 de/drho.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["IdealGas", "Tait", "make_eos"]
+
+
+class IdealGas:
+    """Perfect gas p = (gamma - 1) rho e, entropy S = c_v ln(p / rho^gamma), c_v = R / (gamma - 1)."""
+
+    name = "ideal-gas"
+    has_entropy = True
+
+    def __init__(self, gamma, gas_constant):
+        self.gamma = float(gamma)
+        self.cv = float(gas_constant) / (self.gamma - 1.0)
+
+    def entropy(self, rho, p):
+        return self.cv * np.log(p / rho ** self.gamma)
+
+    def pressure(self, rho, S):
+        return np.exp(S / self.cv) * rho ** self.gamma
+
+    def density(self, p, S):
+        return (p * np.exp(-S / self.cv)) ** (1.0 / self.gamma)
+
+    def sound_speed(self, rho, S):
+        return np.sqrt(self.gamma * self.pressure(rho, S) / rho)
+
+    def psi(self, V, m, S):
+        """Internal energy m e = p V / (gamma - 1) of each parcel."""
+        return self.pressure(m / V, S) * V / (self.gamma - 1.0)
+
+    def dpsi(self, V, m, S):
+        p = self.pressure(m / V, S)
+        return -p, self.gamma * p / V
+
+
+class Tait:
+    """Barotropic liquid p = p0 + (B / gamma) ((rho / rho0)^gamma - 1) (gamma = 1: p0 + B ln(rho / rho0)).
+
+    B is the bulk modulus rho dp/drho at rho0, so the sound speed there is sqrt(B / rho0).
+    """
+
+    name = "barotropic"
+    has_entropy = False
+
+    def __init__(self, rho0, p0, bulk_modulus, gamma):
+        self.rho0, self.p0, self.B, self.gamma = float(rho0), float(p0), float(bulk_modulus), float(gamma)
+
+    def pressure(self, rho, S=None):
+        x = np.asarray(rho) / self.rho0
+        if self.gamma == 1.0:
+            return self.p0 + self.B * np.log(x)
+        return self.p0 + self.B / self.gamma * (x ** self.gamma - 1.0)
+
+    def density(self, p, S=None):
+        if self.gamma == 1.0:
+            return self.rho0 * np.exp((np.asarray(p) - self.p0) / self.B)
+        return self.rho0 * (1.0 + self.gamma * (np.asarray(p) - self.p0) / self.B) ** (1.0 / self.gamma)
+
+    def dp_drho(self, rho):
+        return self.B / self.rho0 * (np.asarray(rho) / self.rho0) ** (self.gamma - 1.0)
+
+    def sound_speed(self, rho, S=None):
+        return np.sqrt(self.dp_drho(rho))
+
+    def psi(self, V, m, S=None):
+        rho = m / V
+        if self.gamma == 1.0:
+            e = -self.p0 / rho - self.B * (np.log(rho / self.rho0) + 1.0) / rho
+        else:
+            P = self.p0 - self.B / self.gamma
+            Q = self.B / self.gamma / self.rho0 ** self.gamma
+            e = -P / rho + Q * rho ** (self.gamma - 1.0) / (self.gamma - 1.0)
+        return m * e
+
+    def dpsi(self, V, m, S=None):
+        rho = m / V
+        return -self.pressure(rho), rho * self.dp_drho(rho) / V
+
+
+def make_eos(fluid):
+    """The equation of state of a scene's ``[fluid]`` section (None if incompressible)."""
+    if fluid.model == "ideal-gas":
+        return IdealGas(fluid.gamma, fluid.gas_constant)
+    if fluid.model == "barotropic":
+        return Tait(fluid.density, fluid.pressure, fluid.bulk_modulus, fluid.gamma)
+    return None
