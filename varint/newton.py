@@ -60,7 +60,8 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
     jacobian : callable z -> sparse matrix
     scale : ndarray
         Typical magnitude of each unknown; convergence is ``max|dz/scale| <= tol``,
-        or the update has reached round-off (``<= 8 eps max|z/scale|``).
+        or the update has reached round-off (``<= 8 eps max|z/scale|``, or it stagnates
+        below ``100 tol`` with a fresh Jacobian).
     factor : object, optional
         A factorisation from an earlier call, reused until the rate degrades.
     """
@@ -99,6 +100,9 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
                     if factor is None:
                         return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, "singular Jacobian")
                     continue
+                if err <= 100 * tol:
+                    # stagnating with a fresh Jacobian just above tol: round-off of an ill-conditioned system
+                    return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stagnated at round-off")
                 if rate >= 1.0 and it >= 3:
                     return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "diverging")
         err_prev = err

@@ -429,6 +429,8 @@ class _Validator:
                 self.bad("fluid.pressure", f"missing (required for model = '{model}')")
             elif f.pressure <= 0 and model == "ideal-gas":
                 self.bad("fluid.pressure", f"must be > 0 for an ideal gas, got {f.pressure:g}")
+        if model == "incompressible" and sc.wall is None:
+            self.bad("fluid.model", "an incompressible fluid in a rigid tube cannot move (every parcel volume is fixed); add a [wall]")
         if model != "barotropic" and f.bulk_modulus is not None:
             self.bad("fluid.bulk_modulus", f"not used by model = '{model}'; remove it")
         e0, e1 = f.ends.s0, f.ends.sL
@@ -443,6 +445,8 @@ class _Validator:
             kp = f"fluid.initial[{i}]"
             if not (0.0 <= r["from"] < r["to"] <= L):
                 self.bad(kp, f"needs 0 <= from < to <= {L:g}, got from = {r['from']:g}, to = {r['to']:g}")
+            if model == "barotropic" and r.density is not None and r.pressure is not None:
+                self.bad(kp, "a barotropic fluid takes density or pressure in a region, not both")
             if model == "incompressible" and (r.density is not None or r.pressure is not None):
                 self.bad(kp, "an incompressible fluid takes only velocity in initial regions")
         allowed = ("velocity",) if model == "incompressible" else ("pressure", "density", "velocity")

@@ -194,8 +194,10 @@ class Simulation:
             elif name == "R":
                 sc[sl] = m.R0
             elif name == "mu":
-                f = m.scene.fluid
-                sc[sl] = max(abs(f.pressure), f.density * 1.0, 1.0)
+                # the multiplier is a pressure; its round-off is set by the wall's stiffness
+                w = m.wall
+                p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * m.R0 / (2 * np.pi)
+                sc[sl] = max(abs(m.scene.fluid.pressure), p_wall)
         return sc
 
     def invalidate_jacobian(self):

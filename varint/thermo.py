@@ -44,7 +44,7 @@ class IdealGas:
 
 
 class Tait:
-    """Barotropic liquid p = p0 + (B / gamma) ((rho / rho0)^gamma - 1) (gamma = 1: p0 + B ln(rho / rho0)).
+    """Barotropic liquid p = p0 + (B / gamma) ((rho / rho0)^gamma - 1) (gamma = 1: the linear law p0 + B (rho/rho0 - 1)).
 
     B is the bulk modulus rho dp/drho at rho0, so the sound speed there is sqrt(B / rho0).
     """
@@ -58,12 +58,12 @@ class Tait:
     def pressure(self, rho, S=None):
         x = np.asarray(rho) / self.rho0
         if self.gamma == 1.0:
-            return self.p0 + self.B * np.log(x)
+            return self.p0 + self.B * (x - 1.0)
         return self.p0 + self.B / self.gamma * (x ** self.gamma - 1.0)
 
     def density(self, p, S=None):
         if self.gamma == 1.0:
-            return self.rho0 * np.exp((np.asarray(p) - self.p0) / self.B)
+            return self.rho0 * (1.0 + (np.asarray(p) - self.p0) / self.B)
         return self.rho0 * (1.0 + self.gamma * (np.asarray(p) - self.p0) / self.B) ** (1.0 / self.gamma)
 
     def dp_drho(self, rho):
@@ -74,10 +74,10 @@ class Tait:
 
     def psi(self, V, m, S=None):
         rho = m / V
+        P = self.p0 - self.B / self.gamma
         if self.gamma == 1.0:
-            e = -self.p0 / rho - self.B * (np.log(rho / self.rho0) + 1.0) / rho
+            e = -P / rho + self.B / self.rho0 * np.log(rho / self.rho0)
         else:
-            P = self.p0 - self.B / self.gamma
             Q = self.B / self.gamma / self.rho0 ** self.gamma
             e = -P / rho + Q * rho ** (self.gamma - 1.0) / (self.gamma - 1.0)
         return m * e

@@ -1,0 +1,84 @@
+"""Shared helpers: scenes written as Python dicts and emitted as TOML text."""
+
+import copy
+import math
+
+import numpy as np
+import pytest
+
+from varint import build_model, parse_scene
+
+
+def _value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def to_toml(d):
+    """Emit a scene dict as TOML: top-level scalars, [tables], [[arrays of tables]] one level deep."""
+    lines = [f"{k} = {_value(v)}" for k, v in d.items() if not isinstance(v, dict)]
+    for sec, body in d.items():
+        if not isinstance(body, dict):
+            continue
+        lines.append(f"\n[{sec}]")
+        arrays = {}
+        for k, v in body.items():
+            if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+                arrays[k] = v
+            else:
+                lines.append(f"{k} = {_value(v)}")
+        for k, items in arrays.items():
+            for item in items:
+                lines.append(f"\n[[{sec}.{k}]]")
+                lines += [f"{kk} = {_value(vv)}" for kk, vv in item.items()]
+    return "\n".join(lines) + "\n"
+
+
+RUBBER_WALL = {"model": "dynamic", "law": "linear", "thickness": 1.0e-3, "density": 1522.0,
+               "youngs_modulus": 5.0e6, "poisson_ratio": 0.5}
+AIR = {"model": "ideal-gas", "gamma": 1.4, "density": 1.225, "pressure": 101325.0}
+
+
+def gas_scene(nodes=33, parcels=32, length=1.0, wall=True, ends="closed", h=1e-5, end=1e-3,
+              scheme="midpoint", perturbation=None, **extra):
+    d = {"title": "test scene",
+         "tube": {"length": length, "nodes": nodes, "radius": 0.05},
+         "fluid": dict(AIR, parcels=parcels, ends={"s0": ends, "sL": ends}),
+         "environment": {"external_pressure": 101325.0},
+         "time": {"step": h, "end": end, "scheme": scheme}}
+    if wall:
+        d["wall"] = dict(RUBBER_WALL)
+    if perturbation is not None:
+        d["fluid"]["perturbation"] = perturbation
+    for k, v in extra.items():
+        d[k] = v
+    return d
+
+
+def make(d):
+    """Scene dict -> (scene, model)."""
+    scene = parse_scene(to_toml(d))
+    return scene, build_model(scene)
+
+
+@pytest.fixture
+def scene_dict():
+    return copy.deepcopy(gas_scene())
+
+
+def zero_crossing_frequency(t, y):
+    """Angular frequency from the mean spacing of the zero crossings of y(t) (linear interpolation)."""
+    y = y - np.mean(y)
+    idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
+    tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
+    half_periods = np.diff(tc)
+    return math.pi / np.mean(half_periods)
