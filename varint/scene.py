@@ -323,8 +323,9 @@ class _Validator:
         for req in ("tube", "time"):
             if req not in raw:
                 self.bad(req, "missing section (required)")
-        tube = self.section(raw.get("tube", {}), "tube", "tube")
-        time = self.section(raw.get("time", {}), "time", "time")
+        # a missing required section is one problem, not one per key inside it
+        tube = self.section(raw["tube"], "tube", "tube") if "tube" in raw else Section()
+        time = self.section(raw["time"], "time", "time") if "time" in raw else Section()
         output = self.section(raw.get("output", {}), "output", "output")
         env = self.section(raw.get("environment", {}), "environment", "environment")
         wall = fluid = None

@@ -4,7 +4,7 @@ import copy
 import math
 
 import numpy as np
-import pytest
+
 
 from varint import build_model, parse_scene
 
@@ -70,9 +70,6 @@ def make(d):
     return scene, build_model(scene)
 
 
-@pytest.fixture
-def scene_dict():
-    return copy.deepcopy(gas_scene())
 
 
 def zero_crossing_frequency(t, y):

@@ -1,0 +1,148 @@
+"""Scene validation: every bad input is one line naming the key and the problem, never a traceback."""
+
+import copy
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from varint.cli import main
+from varint.scene import load_scene
+
+from helpers import gas_scene, to_toml
+
+EXAMPLES = sorted(Path(__file__).parent.parent.joinpath("examples").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
+def test_examples_are_valid(path):
+    assert load_scene(path).title
+
+
+def _set(d, path, value):
+    keys = path.split(".")
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    if value is _DEL:
+        del d[keys[-1]]
+    else:
+        d[keys[-1]] = value
+
+
+_DEL = object()
+PERT = {"field": "pressure", "shape": "cosine", "amplitude": 10.0, "wavelength": 1.0}
+
+# (id, [(key path, value)], text expected in the one-line message)
+BAD = [
+    ("missing-title", [("title", _DEL)], "title: missing"),
+    ("missing-tube", [("tube", _DEL)], "tube: missing section"),
+    ("missing-length", [("tube.length", _DEL)], "tube.length: missing"),
+    ("negative-length", [("tube.length", -1.0)], "tube.length: must be > 0"),
+    ("zero-radius", [("tube.radius", 0.0)], "tube.radius: must be > 0"),
+    ("nodes-float", [("tube.nodes", 10.5)], "tube.nodes: must be a whole number"),
+    ("nodes-too-few", [("tube.nodes", 2)], "tube.nodes: must be >= 3"),
+    ("length-string", [("tube.length", "one")], "tube.length: must be a number"),
+    ("unknown-tube-key", [("tube.lenght", 1.0)], "tube.lenght: unknown key (did you mean 'length'?)"),
+    ("unknown-section", [("fluids", {"a": 1})], "fluids: unknown key (did you mean 'fluid'?)"),
+    ("rod-not-yet", [("rod", {"dimension": 3})], "rod: the [rod] effect"),
+    ("shock-not-yet", [("shock_capturing", {})], "shock_capturing: shock capturing is not available"),
+    ("unknown-fluid-model", [("fluid.model", "ideal_gas")], "fluid.model: unknown value 'ideal_gas'"),
+    ("gamma-below-one", [("fluid.gamma", 0.9)], "fluid.gamma: must be >= 1"),
+    ("gamma-one-gas", [("fluid.gamma", 1.0)], "fluid.gamma: must be > 1 for an ideal gas"),
+    ("negative-density", [("fluid.density", -1.0)], "fluid.density: must be > 0"),
+    ("negative-pressure-gas", [("fluid.pressure", -5.0)], "fluid.pressure: must be > 0 for an ideal gas"),
+    ("missing-parcels", [("fluid.parcels", _DEL)], "fluid.parcels: missing"),
+    ("one-parcel", [("fluid.parcels", 1)], "fluid.parcels: must be >= 2"),
+    ("one-periodic-end", [("fluid.ends", {"s0": "periodic", "sL": "closed"})], "fluid.ends: periodic must be set at both ends"),
+    ("inflow-not-yet", [("fluid.ends", {"s0": "inflow", "sL": "closed"})], "fluid.ends.s0: open ends"),
+    ("bad-end-name", [("fluid.ends", {"s0": "open", "sL": "closed"})], "fluid.ends.s0: unknown value 'open'"),
+    ("barotropic-needs-bulk", [("fluid.model", "barotropic")], "fluid.bulk_modulus: missing"),
+    ("bulk-on-gas", [("fluid.bulk_modulus", 1e9)], "fluid.bulk_modulus: not used"),
+    ("incompressible-rigid", [("fluid", {"model": "incompressible", "density": 1000.0, "parcels": 8}), ("wall", _DEL)], "fluid.model: an incompressible fluid in a rigid tube"),
+    ("bad-shape", [("fluid.perturbation", [dict(PERT, shape="square")])], "fluid.perturbation[0].shape: unknown value 'square'"),
+    ("cosine-no-wavelength", [("fluid.perturbation", [{"field": "pressure", "shape": "cosine", "amplitude": 1.0}])], "fluid.perturbation[0].wavelength: missing"),
+    ("gaussian-no-width", [("fluid.perturbation", [{"field": "density", "shape": "gaussian", "amplitude": 0.01, "center": 0.5}])], "fluid.perturbation[0].width: missing"),
+    ("step-reversed", [("fluid.perturbation", [{"field": "velocity", "shape": "step", "amplitude": 1.0, "from": 0.6, "to": 0.2}])], "fluid.perturbation[0].to: must be > from"),
+    ("bad-field", [("fluid.perturbation", [dict(PERT, field="temperature")])], "fluid.perturbation[0].field: unknown value 'temperature'"),
+    ("wavelength-on-gaussian", [("fluid.perturbation", [{"field": "pressure", "shape": "gaussian", "amplitude": 1.0, "center": 0.5, "width": 0.1, "wavelength": 1.0}])], "fluid.perturbation[0].wavelength: not used by shape = 'gaussian'"),
+    ("pressure-pert-too-big", [("fluid.perturbation", [dict(PERT, amplitude=-2e5)])], "fluid.perturbation: makes the pressure non-positive"),
+    ("region-outside", [("fluid.initial", [{"from": 0.5, "to": 2.0, "pressure": 2e5}])], "fluid.initial[0]: needs 0 <= from < to <= 1"),
+    ("wall-bad-model", [("wall.model", "elastic")], "wall.model: unknown value 'elastic'"),
+    ("wall-no-inertia-data", [("wall.density", _DEL)], "wall.a: missing: give a, or thickness and density"),
+    ("quasistatic-with-a", [("wall.model", "quasistatic"), ("wall.a", 0.3)], "wall.a: a quasistatic wall has no inertia"),
+    ("poisson-too-big", [("wall.poisson_ratio", 0.7)], "wall.poisson_ratio: must be <= 0.5"),
+    ("tube-law-with-beta", [("wall.law", "tube-law"), ("wall.beta2", 1e5)], "wall.beta2: belongs to law = 'linear'"),
+    ("wall-pert-bad-field", [("wall.perturbation", [dict(PERT, field="pressure")])], "wall.perturbation[0].field: 'pressure' cannot be perturbed here"),
+    ("wall-pert-negative-R", [("wall.perturbation", [{"field": "R", "shape": "cosine", "amplitude": 0.2, "wavelength": 1.0}])], "wall.perturbation: makes the radius non-positive"),
+    ("area-table-with-wall", [("tube.area_table", [[0.0, 0.01], [1.0, 0.01]])], "tube.area_table: only for a rigid wall"),
+    ("area-table-short", [("wall", _DEL), ("tube.area_table", [[0.0, 0.01], [0.5, 0.01]])], "tube.area_table: must cover the tube"),
+    ("gravity-two-components", [("environment.gravity", [0.0, -9.81])], "environment.gravity: must be a list of 3 finite numbers"),
+    ("missing-step", [("time.step", _DEL)], "time.step: missing"),
+    ("end-before-step", [("time.end", 1e-6)], "time.end: must be >= time.step"),
+    ("bad-scheme", [("time.scheme", "rk4")], "time.scheme: unknown value 'rk4'"),
+    ("trapezoidal-incompressible", [("fluid", {"model": "incompressible", "density": 1000.0, "parcels": 8}), ("time.scheme", "trapezoidal")], "time.scheme: 'trapezoidal' needs every unknown to carry inertia"),
+    ("newton-tol-zero", [("time.newton_tol", 0.0)], "time.newton_tol: must be > 0"),
+    ("output-every-zero", [("output", {"every": 0})], "output.every: must be >= 1"),
+    ("output-unknown-field", [("output", {"fields": ["rod"]})], "output.fields: unknown or absent field group 'rod'"),
+    ("bool-as-number", [("tube.nodes", True)], "tube.nodes: must be a number"),
+    ("no-effects", [("wall", _DEL), ("fluid", _DEL)], "(scene): no effects"),
+]
+
+
+@pytest.mark.parametrize("mutations,expected", [pytest.param(m, e, id=i) for i, m, e in BAD])
+def test_bad_scene_is_one_line_naming_the_key(tmp_path, capsys, mutations, expected):
+    d = copy.deepcopy(gas_scene())
+    for path, value in mutations:
+        _set(d, path, value)
+    f = tmp_path / "scene.toml"
+    f.write_text(to_toml(d))
+    code = main(["check", str(f)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0
+    assert len(err) == 1, err
+    assert expected in err[0], err[0]
+    assert err[0].startswith("varint: error: ") and "Traceback" not in err[0]
+
+
+def test_toml_syntax_error(tmp_path, capsys):
+    f = tmp_path / "s.toml"
+    f.write_text("title = 'x'\n[tube\nlength = 1\n")
+    assert main(["check", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "TOML syntax error" in err[0] and "line 2" in err[0]
+
+
+def test_missing_file(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.toml: no such file" in err[0]
+
+
+def test_several_problems_give_one_line_each(tmp_path, capsys):
+    d = gas_scene()
+    d["tube"]["length"] = -1.0
+    d["fluid"]["gamma"] = "big"
+    f = tmp_path / "s.toml"
+    f.write_text(to_toml(d))
+    assert main(["check", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and any("tube.length" in e for e in err) and any("fluid.gamma" in e for e in err)
+
+
+def test_cli_process_exit_code_and_no_traceback(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text("title = 'x'\n[tube]\nlength = 1.0\nnodes = 5\nradius = 0.1\nspeed = 3\n[time]\nstep = 0.1\nend = 1.0\n")
+    r = subprocess.run([sys.executable, "-m", "varint", "check", str(f)], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "tube.speed: unknown key" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_check_reports_effects_unknowns_and_invariants(tmp_path, capsys):
+    f = tmp_path / "s.toml"
+    f.write_text(to_toml(gas_scene(nodes=17, parcels=16)))
+    assert main(["check", str(f)]) == 0
+    out = capsys.readouterr().out
+    assert "effects: wall, fluid, external_pressure" in out
+    assert "s (15), R (17)" in out
+    assert "expected invariants: energy, mass, parcel_entropy" in out
