@@ -10,6 +10,8 @@ from varint import build_model, parse_scene
 
 
 def _value(v):
+    if isinstance(v, np.generic):
+        v = v.item()
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
@@ -49,7 +51,7 @@ AIR = {"model": "ideal-gas", "gamma": 1.4, "density": 1.225, "pressure": 101325.
 
 
 def gas_scene(nodes=33, parcels=32, length=1.0, wall=True, ends="closed", h=1e-5, end=1e-3,
-              scheme="midpoint", perturbation=None, **extra):
+              scheme="midpoint", perturbation=None, fluid_velocity=None, **extra):
     d = {"title": "test scene",
          "tube": {"length": length, "nodes": nodes, "radius": 0.05},
          "fluid": dict(AIR, parcels=parcels, ends={"s0": ends, "sL": ends}),
@@ -73,9 +75,11 @@ def make(d):
 
 
 def zero_crossing_frequency(t, y):
-    """Angular frequency from the mean spacing of the zero crossings of y(t) (linear interpolation)."""
-    y = y - np.mean(y)
+    """Angular frequency from the spacing of the first and last zero crossings of y(t) (linear interpolation).
+
+    y must oscillate about zero (no mean is subtracted: over a non-integer number of periods
+    the sample mean of a pure cosine is not zero and would bias the crossings).
+    """
     idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
     tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
-    half_periods = np.diff(tc)
-    return math.pi / np.mean(half_periods)
+    return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
