@@ -17,6 +17,8 @@ import scipy.sparse.linalg as spla
 __all__ = ["NewtonResult", "newton", "factorize"]
 
 EPS = np.finfo(float).eps
+#: contraction rate above which the Jacobian is refreshed (a chord iteration that slow costs more than an LU)
+RATE_REFRESH = 0.2
 
 
 @dataclass
@@ -67,15 +69,18 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
     """
     z = np.array(z0, dtype=np.float64, copy=True)
     n_res = n_jac = 0
-    fresh = factor is None
+    jac_iter = None  # iteration at which the factorisation in use was computed (None: inherited)
     if factor is None:
         factor = factorize(jacobian(z))
         n_jac += 1
+        jac_iter = 0
     if factor is None:
         return NewtonResult(False, z, 0, np.inf, np.nan, None, n_res, n_jac, "singular Jacobian")
     err_prev = None
     rate = np.nan
     it = 0
+    err = np.inf
+    n_growing = 0  # consecutive growing updates
     while it < max_iter:
         r = residual(z)
         n_res += 1
@@ -90,20 +95,23 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
             return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac)
         if err_prev is not None:
             rate = err / err_prev
-            if not np.isfinite(rate) or rate > 0.5:
-                if not fresh:
-                    # stale Jacobian: refresh it here and carry on
+            if not np.isfinite(rate) or rate > RATE_REFRESH:
+                recent = jac_iter is not None and jac_iter >= it - 2
+                if recent and err <= 100 * tol:
+                    # stagnating just above tol with an up-to-date Jacobian: round-off of an ill-conditioned system
+                    return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stagnated at round-off")
+                growing = not np.isfinite(rate) or rate >= 1.0
+                n_growing = n_growing + 1 if growing else 0
+                if n_growing >= 3:
+                    return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "diverging")
+                if jac_iter is None or jac_iter < it:
+                    # slow contraction: refresh the Jacobian here and carry on
                     factor = factorize(jacobian(z))
                     n_jac += 1
-                    fresh = True
+                    jac_iter = it
                     err_prev = None
                     if factor is None:
                         return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, "singular Jacobian")
                     continue
-                if err <= 100 * tol:
-                    # stagnating with a fresh Jacobian just above tol: round-off of an ill-conditioned system
-                    return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stagnated at round-off")
-                if rate >= 1.0 and it >= 3:
-                    return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "diverging")
         err_prev = err
     return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "no convergence within max_iterations")

@@ -1,0 +1,153 @@
+"""HDF5 run files, the CLI, interruption and resume."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from varint import SolverError, parse_scene, run_scene
+from varint.cli import main
+from varint.io import read_run
+
+from helpers import gas_scene, to_toml
+
+PULSE = [{"field": "pressure", "shape": "gaussian", "amplitude": 5e3, "center": 0.5, "width": 0.08}]
+
+
+def _scene_file(tmp_path, **kw):
+    d = gas_scene(nodes=33, parcels=32, perturbation=PULSE, **kw)
+    d["output"] = {"every": 5}
+    f = tmp_path / "scene.toml"
+    f.write_text(to_toml(d))
+    return f
+
+
+def test_run_file_layout(tmp_path, capsys):
+    f = _scene_file(tmp_path, end=2e-4)
+    out = tmp_path / "out.h5"
+    assert main(["run", str(f), "-o", str(out), "-q"]) == 0
+    with h5py.File(out, "r") as h:
+        for a in ("varint_version", "scene_toml", "scheme", "step"):
+            assert a in h.attrs
+        assert h.attrs["scene_toml"] == f.read_text()
+        K = h["time"].shape[0]
+        assert K == 5  # t = 0 and every 5 of 20 steps
+        assert h["time"].is_scale
+        for name in ("energy", "kinetic_energy", "mass", "newton_iterations"):
+            assert h[f"monitors/{name}"].shape == (K,)
+        assert h["monitors/linear_momentum"].shape == (K, 3)
+        assert h["monitors/angular_momentum"].shape == (K, 3)
+        assert h["fields/fluid/s"].shape == (K, 33)
+        assert h["fields/fluid/density"].shape == (K, 32)
+        assert h["fields/wall/R"].shape == (K, 33)
+        assert h["fields/fluid/pressure"].dims[0][0] == h["time"]
+        assert "q" in h["checkpoint"] and h["checkpoint"].attrs["n"] == 20
+    run = read_run(out)
+    assert np.allclose(np.diff(run["time"]), 5e-5)
+    assert np.all(run["monitors"]["mass"] == run["monitors"]["mass"][0])
+
+
+def test_info_and_plot(tmp_path, capsys):
+    f = _scene_file(tmp_path, end=2e-4)
+    out = tmp_path / "out.h5"
+    main(["run", str(f), "-o", str(out), "-q"])
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["records"] == 5 and info["mass_relative_deviation"] == 0.0
+    assert main(["plot", str(out), "-d", str(tmp_path / "png")]) == 0
+    pngs = sorted(p.name for p in (tmp_path / "png").glob("*.png"))
+    assert pngs == ["out_fields.png", "out_monitors.png"]
+    assert (tmp_path / "png" / "out_fields.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_info_on_non_run_file_is_one_line(tmp_path, capsys):
+    bad = tmp_path / "x.h5"
+    bad.write_text("not hdf5")
+    assert main(["info", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a readable varint run file" in err[0]
+
+
+def test_resume_equals_uninterrupted(tmp_path):
+    scene = parse_scene(_scene_file(tmp_path, end=1e-3).read_text())
+    full = tmp_path / "full.h5"
+    run_scene(scene, str(full), progress=False)
+    part = tmp_path / "part.h5"
+    run_scene(scene, str(part), progress=False, max_steps=37)  # stops between two records
+    assert read_run(part)["time"].shape[0] == 8
+    run_scene(scene, str(part), resume=True, progress=False)
+    a, b = read_run(full), read_run(part)
+    assert np.array_equal(a["time"], b["time"])
+    for k in a["fields"]:
+        assert np.allclose(a["fields"][k], b["fields"][k], rtol=1e-12, atol=0), k
+    assert np.allclose(a["monitors"]["energy"], b["monitors"]["energy"], rtol=1e-12, atol=0)
+
+
+def test_killed_run_is_readable_and_resumes(tmp_path):
+    f = _scene_file(tmp_path, end=0.02, h=1e-5)
+    out = tmp_path / "killed.h5"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "varint", "run", str(f), "-o", str(out), "-q"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    records = 0
+    while time.time() < deadline and proc.poll() is None:
+        time.sleep(0.3)
+        try:
+            with h5py.File(out, "r") as h:
+                records = int(h.attrs["records"])
+        except (OSError, KeyError):
+            continue
+        if records >= 20:
+            break
+    assert proc.poll() is None, "the run ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    run = read_run(out)  # readable after SIGKILL
+    k = len(run["time"])
+    assert k >= 20 and np.all(np.isfinite(run["monitors"]["energy"]))
+    assert main(["run", str(f), "-o", str(out), "-q", "--resume"]) == 0
+    ref = tmp_path / "ref.h5"
+    assert main(["run", str(f), "-o", str(ref), "-q"]) == 0
+    a, b = read_run(ref), read_run(out)
+    assert np.array_equal(a["time"], b["time"])
+    for key in a["fields"]:
+        assert np.allclose(a["fields"][key], b["fields"][key], rtol=1e-12, atol=0), key
+
+
+def test_resume_with_a_different_scene_is_refused(tmp_path, capsys):
+    f = _scene_file(tmp_path, end=2e-4)
+    out = tmp_path / "o.h5"
+    main(["run", str(f), "-o", str(out), "-q"])
+    f.write_text(f.read_text().replace("end = 0.0002", "end = 0.0003"))
+    capsys.readouterr()
+    assert main(["run", str(f), "-o", str(out), "-q", "--resume"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different scene" in err[0]
+
+
+def test_failed_step_keeps_what_was_written(tmp_path, capsys, monkeypatch):
+    from varint import stepper
+
+    f = _scene_file(tmp_path, end=1e-3)
+    out = tmp_path / "fail.h5"
+    real_step = stepper.Simulation.step
+
+    def failing_step(self):
+        if self.state.n == 23:
+            raise SolverError("Newton failed at step 24 (t = 0.00024 s): diverging; scaled update 1, contraction rate 2")
+        return real_step(self)
+
+    monkeypatch.setattr(stepper.Simulation, "step", failing_step)
+    assert main(["run", str(f), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "step 24" in err[0]
+    run = read_run(out)
+    assert len(run["time"]) == 5 and run["time"][-1] == pytest.approx(2e-4)
