@@ -1,0 +1,59 @@
+"""Write docs/scenes.md from the scene schema (varint.scene.SCHEMA), so the docs cannot drift.
+
+Run: python scripts/write_scene_docs.py   (tests/test_docs.py checks the file is current)
+"""
+
+from pathlib import Path
+
+from varint.scene import NOT_YET, REQUIRED, SCHEMA
+
+HEADER = """# Scene files
+
+A scene is a TOML file in SI units. Its sections switch effects on (DESIGN §4): a scene without
+`[wall]` has a rigid wall and no radius unknowns; without `[fluid]` it has no labels. Unknown keys
+are errors (the nearest valid key is suggested); every problem is reported as one line
+`key.path: what is wrong`. `varint check SCENE.toml` prints the resolved parameters, the effects,
+the unknowns and the expected invariants.
+
+This page is generated from `varint/scene.py` by `scripts/write_scene_docs.py`.
+
+Perturbation profiles: `cosine` adds amplitude·cos(2πs/wavelength + phase); `gaussian` adds
+amplitude·exp(−(s−center)²/(2 width²)); `step` adds amplitude on [from, to]. Pressure and density
+perturbations of a gas are isentropic (the other variable follows at the parcel's entropy); a
+barotropic fluid follows its barotrope. Regions `[[fluid.initial]]` are applied first, in order,
+then perturbations.
+"""
+
+
+def render():
+    out = [HEADER]
+    for section, keys in SCHEMA.items():
+        name = section or "(top level)"
+        out.append(f"\n## `{name}`\n" if section else "\n## top level\n")
+        if section.endswith("[]"):
+            out.append(f"An array of tables: write each entry as `[[{section[:-2]}]]`.\n")
+        out.append("| key | type | unit | default | meaning |\n|---|---|---|---|---|")
+        for k in keys:
+            if k.default is REQUIRED:
+                default = "**required**"
+            elif k.default is None:
+                default = "–"
+            else:
+                default = f"`{k.default}`"
+            kind = k.kind + (f" ({', '.join(k.choices)})" if k.choices else "")
+            rng = ""
+            if k.low is not None:
+                rng += f" {'>' if k.low_open else '≥'} {k.low:g}"
+            if k.high is not None:
+                rng += f", ≤ {k.high:g}"
+            out.append(f"| `{k.name}` | {kind}{rng} | {k.unit} | {default} | {k.doc} |")
+    out.append("\n## Sections not available in this version\n")
+    for name, why in NOT_YET.items():
+        out.append(f"- `[{name}]`: {why}.")
+    return "\n".join(out) + "\n"
+
+
+if __name__ == "__main__":
+    path = Path(__file__).resolve().parent.parent / "docs" / "scenes.md"
+    path.write_text(render())
+    print(f"wrote {path}")
