@@ -164,8 +164,10 @@ class Model:
             if np.any(R_init <= 0):
                 raise ValueError("wall.perturbation: makes the radius non-positive somewhere")
         self.R_reference = R_init.copy()
-        if not self.has_wall:
-            self.c0[self.index["R"]:self.index["R"] + self.nR] = R_init
+        # Unknowns are displacements from the reference lattice (c0 holds the reference): the
+        # round-off of a step then scales with the motion, not with the absolute position, which
+        # keeps momentum maps conserved to the Newton tolerance on long tubes.
+        self.c0[self.index["R"]:self.index["R"] + self.nR] = R_init
         q = np.zeros(self.nq)
         lam = np.zeros(self.nlam)
         v = np.zeros(self.nq)
@@ -182,20 +184,13 @@ class Model:
             self.V0 = V.copy()
             self.rho0 = sc.fluid.density
             sl = self.layout["s"]
+            self.c0[: self.M] = s[:-1]  # with c0[M] = L from the layout: labels at rest positions
             if self.periodic:
-                q[sl] = s[:-1]
                 v[sl] = u_lab[:-1]
             else:
-                q[sl] = s[1:-1]
                 v[sl] = u_lab[1:-1]
             if self.incompressible:
                 lam[self.layout["mu"].start - self.nq:] = sc.fluid.pressure
-        if self.has_wall:
-            sl = self.layout["R"]
-            if self.wall_dynamic:
-                q[sl] = R_init
-            else:
-                lam[sl.start - self.nq: sl.stop - self.nq] = R_init
         self.mass = self._mass_vector()
         self.q_init, self.lam_init, self.v_init = q, lam, v
         self.p_init = self.mass * v
