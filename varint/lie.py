@@ -21,10 +21,16 @@ __all__ = ["hat", "vee", "cay", "cay_inv", "dcay", "dcay_inv", "half", "cay_batc
            "orthogonality_error"]
 
 
+def _arr(x):
+    """float64 array, or complex128 if complex (the rod's complex-step derivatives pass through here)."""
+    x = np.asarray(x)
+    return x if np.iscomplexobj(x) else x.astype(np.float64, copy=False)
+
+
 def hat(w):
     """Skew matrix of w (..., 3) -> (..., 3, 3): hat(w) @ v = w x v."""
-    w = np.asarray(w, dtype=np.float64)
-    out = np.zeros(w.shape + (3,))
+    w = _arr(w)
+    out = np.zeros(w.shape + (3,), dtype=w.dtype)
     out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
     out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
@@ -38,32 +44,32 @@ def vee(A):
 
 
 def cay(w):
-    w = np.asarray(w, dtype=np.float64)
+    w = _arr(w)
     W = hat(w)
     c = 4.0 / (4.0 + np.sum(w * w, axis=-1))
     return np.eye(3) + c[..., None, None] * (W + 0.5 * W @ W)
 
 
 def cay_inv(L):
-    L = np.asarray(L, dtype=np.float64)
+    L = _arr(L)
     tr = np.trace(L, axis1=-2, axis2=-1)
     return (2.0 / (1.0 + tr))[..., None] * 2.0 * vee(L)  # vee of (L - L^T) is 2 vee(L) on the skew part
 
 
 def dcay(w):
-    w = np.asarray(w, dtype=np.float64)
+    w = _arr(w)
     c = 4.0 / (4.0 + np.sum(w * w, axis=-1))
     return c[..., None, None] * (np.eye(3) + 0.5 * hat(w))
 
 
 def dcay_inv(w):
-    w = np.asarray(w, dtype=np.float64)
+    w = _arr(w)
     return np.eye(3) - 0.5 * hat(w) + 0.25 * w[..., :, None] * w[..., None, :]
 
 
 def half(w):
     """Cayley parameter of the half rotation: cay(half(w)) @ cay(half(w)) == cay(w)."""
-    w = np.asarray(w, dtype=np.float64)
+    w = _arr(w)
     return w / (1.0 + np.sqrt(1.0 + 0.25 * np.sum(w * w, axis=-1)))[..., None]
 
 

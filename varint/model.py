@@ -343,6 +343,10 @@ def build_model(scene):
     a radius or density non-positive) are reported as :class:`SceneError`.
     """
     try:
+        if scene.rod is not None:
+            from .rod import RodModel
+
+            return RodModel(scene)
         return Model(scene)
     except ValueError as exc:
         raise SceneError(str(exc), source=scene.path) from None

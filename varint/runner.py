@@ -11,7 +11,14 @@ from .io import RunWriter
 from .model import build_model
 from .stepper import Simulation
 
-__all__ = ["run_scene", "default_output"]
+__all__ = ["run_scene", "default_output", "make_simulation"]
+
+
+def make_simulation(model):
+    """The stepper of a model: the rod's Lie-group scheme or the tube's."""
+    from .rod import RodModel, RodSimulation
+
+    return RodSimulation(model) if isinstance(model, RodModel) else Simulation(model)
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +56,7 @@ def run_scene(scene, out, resume=False, progress=None, max_steps=None):
         The simulation at its final state.
     """
     model = build_model(scene)
-    sim = Simulation(model)
+    sim = make_simulation(model)
     every = scene.output.every
     groups = scene.output.fields
     n_end = int(math.floor(scene.time.end / sim.h + 1e-9))

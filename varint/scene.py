@@ -106,6 +106,34 @@ SCHEMA = MappingProxyType({
         Key("velocity", "float", None, "m/s", "velocity in the region"),
     ),
     "fluid.perturbation[]": SHAPE_KEYS,
+    "rod": (
+        Key("dimension", "int", 3, "", "3: full SE(3) motion; 2: planar motion in the x-y plane (3 unknowns per node)", low=2, high=3),
+        Key("measure", "str", "paper", "", "paper: energy densities times |Gamma| (Lagrangian_fluid_tube); reference: per reference length", choices=("paper", "reference")),
+        Key("youngs_modulus", "float", None, "Pa", "material form: Young's modulus E", low=0.0, low_open=True),
+        Key("shear_modulus", "float", None, "Pa", "material form: shear modulus G (default E/3)", low=0.0, low_open=True),
+        Key("density", "float", None, "kg/m^3", "material form: density", low=0.0, low_open=True),
+        Key("thickness", "float", None, "m", "material form: wall thickness of the annulus whose inner radius is tube.radius", low=0.0, low_open=True),
+        Key("shear_coefficient", "float", 0.75, "", "material form: k in the shear stiffness k G A (0.75 = PyElastica's 1/alpha_c)", low=0.0, low_open=True),
+        Key("mass_per_length", "float", None, "kg/m", "stiffness form: rho A", low=0.0, low_open=True),
+        Key("rotary_inertia", "float", None, "kg m", "stiffness form: rho I about a bending axis, per length (polar: twice)", low=0.0, low_open=True),
+        Key("bending_stiffness", "float", None, "N m^2", "stiffness form: E I", low=0.0, low_open=True),
+        Key("torsional_stiffness", "float", None, "N m^2", "stiffness form: G J", low=0.0, low_open=True),
+        Key("axial_stiffness", "float", None, "N", "stiffness form: E A", low=0.0, low_open=True),
+        Key("shear_stiffness", "float", None, "N", "stiffness form: k G A", low=0.0, low_open=True),
+    ),
+    "rod.ends": (
+        Key("s0", "str", "clamped", "", "support at s = 0", choices=("clamped", "pinned", "free")),
+        Key("sL", "str", "free", "", "support at s = L", choices=("clamped", "pinned", "free")),
+    ),
+    "rod.initial": (
+        Key("velocity", "vec3", (0.0, 0.0, 0.0), "m/s", "rigid translation velocity"),
+        Key("angular_velocity", "vec3", (0.0, 0.0, 0.0), "rad/s", "rigid rotation about the centre of mass (spatial)"),
+        Key("curvature", "vec3", (0.0, 0.0, 0.0), "1/m", "uniform body curvature of the initial shape (the stress-free reference stays straight along +x)"),
+    ),
+    "rod.load": (
+        Key("force", "vec3", (0.0, 0.0, 0.0), "N", "dead force at s = L"),
+        Key("torque", "vec3", (0.0, 0.0, 0.0), "N m", "dead (spatial) torque at s = L, by Lagrange-d'Alembert"),
+    ),
     "environment": (
         Key("external_pressure", "float", None, "Pa", "uniform pressure outside the wall (default: the fluid's initial pressure, so the reference tube is in equilibrium; 0 without fluid)"),
         Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube lies along +x"),
@@ -125,7 +153,6 @@ SCHEMA = MappingProxyType({
 })
 
 NOT_YET = {
-    "rod": "the [rod] effect (3D/planar Cosserat rod) is not available in this version; remove the section",
     "shock_capturing": "shock capturing is not available in this version; remove the section",
 }
 
@@ -150,6 +177,7 @@ class Scene:
     environment: Section
     wall: Section | None = None
     fluid: Section | None = None
+    rod: Section | None = None
     text: str = ""
     path: str | None = None
     derived: dict = field(default_factory=dict)
@@ -158,6 +186,8 @@ class Scene:
     def effects(self):
         """Names of the effects this scene switches on, in assembly order."""
         eff = []
+        if self.rod is not None:
+            eff.append("rod")
         if self.wall is not None:
             eff.append("wall")
         if self.fluid is not None:
@@ -343,7 +373,16 @@ class _Validator:
             fluid["ends"] = self.section(rf.get("ends", {}), "fluid.ends", "fluid.ends")
             fluid["initial"] = self.array_of_tables(rf.get("initial"), "fluid.initial[]", "fluid.initial")
             fluid["perturbation"] = self.array_of_tables(rf.get("perturbation"), "fluid.perturbation[]", "fluid.perturbation")
-        scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall, fluid=fluid)
+        rod = None
+        if "rod" in raw:
+            rr = raw["rod"] if isinstance(raw["rod"], dict) else {}
+            if not isinstance(raw["rod"], dict):
+                self.bad("rod", "must be a table")
+            rod = self.section({k: v for k, v in rr.items() if k not in ("ends", "initial", "load")}, "rod", "rod")
+            for sub in ("ends", "initial", "load"):
+                rod[sub] = self.section(rr.get(sub, {}), f"rod.{sub}", f"rod.{sub}")
+        scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall,
+                      fluid=fluid, rod=rod)
         if not self.problems:
             self.cross_checks(scene)
         return scene
@@ -351,8 +390,10 @@ class _Validator:
     def cross_checks(self, sc):
         L = sc.tube.length
         R0 = sc.tube.radius
-        if sc.wall is None and sc.fluid is None:
-            self.bad("(scene)", "no effects: add a [fluid] and/or a [wall] section")
+        if sc.wall is None and sc.fluid is None and sc.rod is None:
+            self.bad("(scene)", "no effects: add a [rod], [fluid] and/or [wall] section")
+        if sc.rod is not None:
+            self.rod_checks(sc)
         if sc.tube.area_table is not None:
             self.check_area_table(sc.tube.area_table, L)
             if sc.wall is not None:
@@ -373,13 +414,49 @@ class _Validator:
             env["external_pressure"] = sc.fluid.pressure if (sc.fluid is not None and sc.fluid.pressure is not None) else 0.0
         if sc.fluid is not None and sc.fluid.model == "incompressible" and sc.fluid.pressure is None:
             sc.fluid["pressure"] = env.external_pressure
-        if sc.output.fields is not None:
+        if sc.output.fields is not None and sc.rod is None:
             valid = [g for g, on in (("fluid", sc.fluid is not None), ("wall", sc.wall is not None)) if on]
             for f in sc.output.fields:
                 if f not in valid:
                     self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: {', '.join(valid)}")
         if sc.output.file is not None and not sc.output.file.strip():
             self.bad("output.file", "must not be empty")
+
+    def rod_checks(self, sc):
+        rod = sc.rod
+        if sc.fluid is not None or sc.wall is not None:
+            self.bad("rod", "the rod coupled to a [fluid] or [wall] is not available in this version; use [rod] alone")
+        if sc.time.scheme != "midpoint":
+            self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme only; use 'midpoint'")
+        stiff = ("mass_per_length", "rotary_inertia", "bending_stiffness", "torsional_stiffness", "axial_stiffness", "shear_stiffness")
+        material = ("youngs_modulus", "density", "thickness")
+        given_s = [k for k in stiff if rod[k] is not None]
+        given_m = [k for k in material + ("shear_modulus",) if rod[k] is not None]
+        if given_s and given_m:
+            self.bad(f"rod.{given_m[0]}", "give either the material form or the stiffness form, not both")
+        elif given_s:
+            for k in stiff:
+                if rod[k] is None:
+                    self.bad(f"rod.{k}", "missing (the stiffness form needs all six of " + ", ".join(stiff) + ")")
+        else:
+            for k in material:
+                if rod[k] is None:
+                    self.bad(f"rod.{k}", "missing (material form: youngs_modulus, density, thickness; or the stiffness form)")
+        if rod.dimension == 2:
+            planar = {"rod.initial.velocity": (rod.initial.velocity, 2), "rod.initial.angular_velocity": (rod.initial.angular_velocity, 0),
+                      "rod.initial.curvature": (rod.initial.curvature, 0), "rod.load.force": (rod.load.force, 2),
+                      "rod.load.torque": (rod.load.torque, 0), "environment.gravity": (sc.environment.gravity, 2)}
+            for key, (vec, kind) in planar.items():
+                if vec is None:
+                    continue
+                out_of_plane = vec[2] != 0.0 if kind == 2 else (vec[0] != 0.0 or vec[1] != 0.0)
+                if out_of_plane:
+                    what = "a z component" if kind == 2 else "x or y components"
+                    self.bad(key, f"a planar rod (dimension = 2) moves in the x-y plane: this vector must not have {what}")
+        if sc.output.fields is not None:
+            for f in sc.output.fields:
+                if f != "rod":
+                    self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: rod")
 
     def check_area_table(self, table, L):
         s = [p[0] for p in table]

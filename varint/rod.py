@@ -1,0 +1,528 @@
+"""The geometrically exact rod on the SE(3) lattice: a Cayley-map Lie-group variational integrator.
+
+Lattice (DESIGN §2): nodes j = 0..N carry positions r_j and frames Lambda_j in SO(3).  A time step
+n -> n+1 is parametrised by xi_j = cay^-1(Lambda_j^n^T Lambda_j^{n+1}) (= h omega_j) and r_j^{n+1}.
+
+Discrete Lagrangian of a step (docs/theory.md §9), a sum over elements e = (j, j+1):
+
+    L_d = sum_e h ds mu_e [ (k_j + k_{j+1})/2 - W_e + rhoA g.(rm_j + rm_{j+1})/2 ] + h F.rm_N
+    k_j  = 1/2 rhoA |r_j^{n+1} - r_j^n|^2 / h^2 + 1/2 xi_j^T I xi_j / h^2          (kinetic density)
+    W_e  = 1/2 Om_e^T J Om_e + 1/2 (Ga_e - chi)^T K (Ga_e - chi)                   (elastic density)
+    Om_e = (Omega_e^n + Omega_e^{n+1}) / 2,  Ga_e = (Gamma_e^n + Gamma_e^{n+1}) / 2    (strain midpoint)
+    Omega_e = cay^-1(Lambda_j^T Lambda_{j+1}) / ds,  Gamma_e = 1/2 (Lambda_j + Lambda_{j+1})^T (r_{j+1} - r_j) / ds
+    rm_j = (r_j^n + r_j^{n+1}) / 2,   mu_e = |Ga_e| (the paper's measure) or 1 (reference-length measure)
+
+Its derivatives with respect to the Lie-group variations Lambda -> Lambda cay(eps sigma),
+r -> r + eps dr are computed by complex-step differentiation, exact to round-off (every operation
+above is real-analytic); the step solves, in position-momentum form,
+
+    pi_n + D1 L_d(q_n, q_{n+1}) + f^-_n = 0,       pi_{n+1} = D2 L_d(q_n, q_{n+1}) + f^+_n,
+
+where pi = (p, Pi) are the linear (spatial) and angular (body) momenta and f^± = (h/2)(0, Lambda^T T)
+the tip torque by Lagrange-d'Alembert.  Newton uses a colour-grouped finite-difference Jacobian of
+that exact residual, factorised once and reused.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import SolverError
+from .lie import cay, cay_inv
+from .newton import newton, newton_damped
+from .stepper import State, StepStats
+
+__all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "static_equilibrium", "rod_modes"]
+
+EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
+CHI = np.array([1.0, 0.0, 0.0])
+
+
+@dataclass(frozen=True)
+class RodSection:
+    """Per-unit-length section properties (SI)."""
+
+    rhoA: float  #: mass per length [kg/m]
+    rhoI: float  #: rotary inertia about a bending axis per length [kg m]
+    EI: float  #: bending stiffness [N m^2]
+    GJ: float  #: torsional stiffness [N m^2]
+    EA: float  #: axial stiffness [N]
+    kGA: float  #: shear stiffness [N]
+
+    @property
+    def inertia(self):
+        """Body inertia per length diag(polar, bending, bending); the rod axis is E1."""
+        return np.array([2.0 * self.rhoI, self.rhoI, self.rhoI])
+
+    @property
+    def J(self):
+        return np.array([self.GJ, self.EI, self.EI])
+
+    @property
+    def K(self):
+        return np.array([self.EA, self.kGA, self.kGA])
+
+
+def rod_section(rod, inner_radius):
+    """Section of a scene's ``[rod]``: stiffness form, or an annulus of the given thickness."""
+    if rod.bending_stiffness is not None:
+        return RodSection(rod.mass_per_length, rod.rotary_inertia, rod.bending_stiffness, rod.torsional_stiffness,
+                          rod.axial_stiffness, rod.shear_stiffness)
+    ri = inner_radius
+    ro = ri + rod.thickness
+    A = math.pi * (ro ** 2 - ri ** 2)
+    I = math.pi * (ro ** 4 - ri ** 4) / 4.0
+    E, rho = rod.youngs_modulus, rod.density
+    G = rod.shear_modulus if rod.shear_modulus is not None else E / 3.0
+    return RodSection(rho * A, rho * I, E * I, G * 2.0 * I, E * A, rod.shear_coefficient * G * A)
+
+
+# ---------------------------------------------------------------------------
+# the discrete Lagrangian, complex-step ready (leading batch axes allowed on every argument)
+
+
+def _T(A):
+    return np.swapaxes(A, -1, -2)
+
+
+def _mv(A, v):
+    return np.einsum("...ij,...j->...i", A, v)
+
+
+class RodModel:
+    """Unknowns, section and loads of a scene's ``[rod]``."""
+
+    def __init__(self, scene):
+        rod = scene.rod
+        self.scene = scene
+        self.L = scene.tube.length
+        self.N = scene.tube.nodes - 1
+        self.ds = self.L / self.N
+        self.dim = rod.dimension
+        self.section = rod_section(rod, scene.tube.radius)
+        self.paper_measure = rod.measure == "paper"
+        self.g = np.array(scene.environment.gravity, dtype=float)
+        load = rod.load or {}
+        self.force = np.array(load.get("force") or (0.0, 0.0, 0.0), dtype=float)
+        self.torque = np.array(load.get("torque") or (0.0, 0.0, 0.0), dtype=float)
+        # active per-node directions: (dr_x, dr_y, dr_z, sigma_x, sigma_y, sigma_z)
+        dirs = np.array([True] * 6) if self.dim == 3 else np.array([True, True, False, False, False, True])
+        mask = np.tile(dirs, (self.N + 1, 1))
+        for node, kind in ((0, rod.ends.s0), (self.N, rod.ends.sL)):
+            if kind in ("clamped", "pinned"):
+                mask[node, :3] = False
+            if kind == "clamped":
+                mask[node, 3:] = False
+        self.mask = mask
+        self.nz = int(mask.sum())
+        self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
+        self.w = np.full(self.N + 1, self.ds)
+        self.w[0] = self.w[-1] = 0.5 * self.ds
+        self._initial(rod.initial or {})
+
+    # -- initial state -------------------------------------------------------
+
+    def _initial(self, ini):
+        N, ds = self.N, self.ds
+        kappa = np.array(ini.get("curvature") or (0.0, 0.0, 0.0), dtype=float)
+        Lam = np.empty((N + 1, 3, 3))
+        r = np.zeros((N + 1, 3))
+        Lam[0] = np.eye(3)
+        step = cay(ds * kappa)
+        for j in range(N):
+            Lam[j + 1] = Lam[j] @ step
+            # strain-free chord: 1/2 (L_j + L_{j+1})^T dr / ds = chi
+            r[j + 1] = r[j] + ds * np.linalg.solve(0.5 * (Lam[j] + Lam[j + 1]).T, CHI)
+        V = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
+        Om = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
+        m = self.section.rhoA * self.w
+        rc = (m[:, None] * r).sum(0) / m.sum()
+        v = V + np.cross(Om, r - rc)
+        omega = np.einsum("nji,j->ni", Lam, Om)  # body angular velocity Lambda^T Omega
+        self.Lam0, self.r0 = Lam, r
+        self.v0, self.omega0 = v, omega
+        self.p0 = m[:, None] * v
+        self.Pi0 = (self.section.inertia[None, :] * self.w[:, None]) * omega
+
+    # -- discrete Lagrangian pieces ---------------------------------------------
+
+    def strains(self, Lam, r):
+        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds."""
+        La, Lb = Lam[..., :-1, :, :], Lam[..., 1:, :, :]
+        Om = cay_inv(_T(La) @ Lb) / self.ds
+        Ga = _mv(_T(0.5 * (La + Lb)), r[..., 1:, :] - r[..., :-1, :]) / self.ds
+        return Om, Ga
+
+    def lagrangian_pieces(self, h, Lam_n, r_n, xi, r_1, sig=None, dr=None, level=0):
+        """Per-element discrete Lagrangian (B, N) and per-node extra pieces (B, N+1).
+
+        ``sig``, ``dr`` (B, N+1, 3) perturb the level ``level`` (0: n, 1: n+1) configuration:
+        Lambda -> Lambda cay(sig), r -> r + dr.  Complex values give complex-step derivatives.
+        The potential is evaluated at the *strain midpoint* (eps_n + eps_{n+1})/2: exact for rigid
+        motions of any size, the implicit midpoint rule on linear problems (docs/theory.md §9).
+        """
+        Lam_1 = Lam_n @ cay(xi)
+        if sig is not None:
+            C = cay(sig)
+            if level == 0:
+                Lam_n = Lam_n @ C
+                xi = cay_inv(_T(C) @ cay(xi))
+                r_n = r_n + dr
+            else:
+                Lam_1 = Lam_1 @ C
+                xi = cay_inv(cay(xi) @ C)
+                r_1 = r_1 + dr
+        sec, ds = self.section, self.ds
+        vel = (r_1 - r_n) / h
+        k = 0.5 * sec.rhoA * np.sum(vel * vel, axis=-1) + 0.5 * np.sum(sec.inertia * xi * xi, axis=-1) / h ** 2
+        Om0, Ga0 = self.strains(Lam_n, r_n)
+        Om1, Ga1 = self.strains(Lam_1, r_1)
+        Om, Ga = 0.5 * (Om0 + Om1), 0.5 * (Ga0 + Ga1)
+        dG = Ga - CHI
+        W = 0.5 * np.sum(sec.J * Om * Om, axis=-1) + 0.5 * np.sum(sec.K * dG * dG, axis=-1)
+        mu = np.sqrt(np.sum(Ga * Ga, axis=-1)) if self.paper_measure else 1.0
+        rm = 0.5 * (r_n + r_1)
+        grav = sec.rhoA * np.sum(self.g * (rm[..., :-1, :] + rm[..., 1:, :]), axis=-1) * 0.5
+        elem = h * ds * mu * (0.5 * (k[..., :-1] + k[..., 1:]) - W + grav)
+        node = np.zeros(rm.shape[:-1], dtype=elem.dtype)
+        node[..., -1] = h * np.sum(self.force * rm[..., -1, :], axis=-1)
+        return elem, node
+
+    def level_energy(self, Lam, r, p, Pi):
+        """Energy H(q_n, pi_n) = kinetic from the discrete momenta + potential at the level (the monitor)."""
+        sec, ds = self.section, self.ds
+        Om, Ga = self.strains(Lam, r)
+        dG = Ga - CHI
+        mu = np.sqrt(np.sum(Ga * Ga, axis=-1)) if self.paper_measure else np.ones(self.N)
+        wmu = np.zeros(self.N + 1)  # nodal weights of the (possibly |Gamma|-weighted) lumped mass
+        wmu[:-1] += 0.5 * ds * mu
+        wmu[1:] += 0.5 * ds * mu
+        kin = float(np.sum(np.sum(p * p, 1) / (sec.rhoA * wmu)) * 0.5
+                    + np.sum(np.sum(Pi * Pi / sec.inertia, 1) / wmu) * 0.5)
+        bend = float(np.sum(ds * mu * 0.5 * np.sum(sec.J * Om * Om, axis=-1)))
+        stretch = float(np.sum(ds * mu * 0.5 * np.sum(sec.K * dG * dG, axis=-1)))
+        grav = -float(np.sum(ds * mu * sec.rhoA * np.sum(self.g * (r[:-1] + r[1:]), axis=-1) * 0.5))
+        load = -float(np.dot(self.force, r[-1]))
+        return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
+
+    def derivative(self, h, Lam_n, r_n, xi, r_1, level):
+        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
+        N = self.N
+        dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
+        nb = 2 * len(dirs)
+        sig = np.zeros((nb, N + 1, 3), dtype=complex)
+        dr = np.zeros((nb, N + 1, 3), dtype=complex)
+        b = 0
+        plan = []
+        for c in (0, 1):
+            nodes = np.arange(c, N + 1, 2)
+            for d in dirs:
+                if d < 3:
+                    dr[b, nodes, d] = 1j * EPS_CS
+                else:
+                    sig[b, nodes, d - 3] = 1j * EPS_CS
+                plan.append((c, d))
+                b += 1
+        elem, node = self.lagrangian_pieces(h, Lam_n, r_n, xi, r_1, sig, dr, level)
+        de = elem.imag / EPS_CS
+        dn = node.imag / EPS_CS
+        out = np.zeros((N + 1, 6))
+        e = np.arange(N)
+        for b, (c, d) in enumerate(plan):
+            # each element has exactly one node of each colour
+            owner = np.where(e % 2 == c, e, e + 1)
+            np.add.at(out[:, d], owner, de[b])
+            nodes = np.arange(c, N + 1, 2)
+            out[nodes, d] += dn[b, nodes]
+        return out
+
+    def torque_force(self, h, Lam):
+        """Lagrange-d'Alembert discrete force (h/2)(0, Lambda_N^T T) at one level, shape (N+1, 6)."""
+        f = np.zeros((self.N + 1, 6))
+        if np.any(self.torque):
+            f[-1, 3:] = 0.5 * h * (Lam[-1].T @ self.torque)
+        return f
+
+    def expected_invariants(self):
+        """From the terms present: supports and tip loads break the symmetries, gravity breaks them along g."""
+        inv = [] if np.any(self.torque) else ["energy"]
+        free = self.mask[0].all() and self.mask[-1].all() if self.dim == 3 else not (~self.mask[[0, -1]][:, [0, 1, 5]]).any()
+        if free and not np.any(self.force) and not np.any(self.torque):
+            g = np.any(self.g)
+            inv += ["linear_momentum_transverse_to_gravity" if g else "linear_momentum",
+                    "angular_momentum_along_gravity" if g else "angular_momentum"]
+        return inv
+
+    def describe(self):
+        s = self.section
+        return {"effects": ["rod"], "unknowns": {"r": self.layout["r"], "Lambda": self.layout["Lambda"]},
+                "unknowns_total": self.nz, "inertial_unknowns": self.nz, "algebraic_unknowns": 0,
+                "terms": ["rod_kinetic", "bending_torsion", "stretch_shear"] + (["gravity"] if np.any(self.g) else [])
+                + (["tip_force"] if np.any(self.force) else []) + (["tip_torque"] if np.any(self.torque) else []),
+                "invariants": self.expected_invariants(), "scheme": "midpoint",
+                "lattice": {"elements": self.N, "ds": self.ds, "parcels": 0, "periodic": False},
+                "rod": {"dimension": self.dim, "measure": "paper" if self.paper_measure else "reference",
+                        "mass_per_length": s.rhoA, "bending_stiffness": s.EI, "torsional_stiffness": s.GJ,
+                        "axial_stiffness": s.EA, "shear_stiffness": s.kGA, "rotary_inertia": s.rhoI}}
+
+
+def _pack(Lam, r):
+    return np.concatenate([r.ravel(), Lam.ravel()])
+
+
+def _unpack(q, N):
+    n3 = 3 * (N + 1)
+    return q[n3:].reshape(N + 1, 3, 3), q[:n3].reshape(N + 1, 3)
+
+
+class RodSimulation:
+    """Public step API for the rod, with the same interface as :class:`varint.stepper.Simulation`."""
+
+    def __init__(self, model, h=None, tol=None, max_iter=None, state=None):
+        tcfg = model.scene.time
+        self.model = model
+        self.h = float(h if h is not None else tcfg.step)
+        self.tol = tol if tol is not None else tcfg.newton_tol
+        self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
+        N = model.N
+        if state is None:
+            q = _pack(model.Lam0, model.r0)
+            p = np.concatenate([model.p0.ravel(), model.Pi0.ravel()])
+            # predictor data: the last step's displacement in the body frame it started from, and xi
+            v = np.concatenate([np.einsum("nji,nj->ni", model.Lam0, self.h * model.v0).ravel(),
+                                (self.h * model.omega0).ravel()])
+            state = State(0, 0.0, q, p, np.empty(0), v)
+        self.state = state
+        self.stats = StepStats()
+        self._factor = None
+        scale = np.ones((N + 1, 6))
+        scale[:, :3] = model.ds
+        self.scale = scale[model.mask]
+
+    def invalidate_jacobian(self):
+        self._factor = None
+
+    # -- residual ------------------------------------------------------------------
+
+    # Unknowns of a step: per node the displacement in its level-n body frame, b = Lambda_n^T (r_{n+1} - r_n),
+    # and xi.  In body coordinates the Jacobian does not rotate with the rod, so it can be reused while
+    # the rod tumbles; the translational residual rows are rotated to the same frame.
+
+    def _split(self, z, Lam_n, r_n):
+        m = self.model
+        u = np.zeros((m.N + 1, 6))
+        u[m.mask] = z
+        return r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3]), u[:, 3:]
+
+    def residual(self, z, Lam_n, r_n, pi_n):
+        """pi_n + D1 L_d + f^- on the active components (pi_n given as (N+1, 6): p, Pi)."""
+        m = self.model
+        r_1, xi = self._split(z, Lam_n, r_n)
+        R = pi_n + m.derivative(self.h, Lam_n, r_n, xi, r_1, level=0) + m.torque_force(self.h, Lam_n)
+        R[:, :3] = np.einsum("nji,nj->ni", Lam_n, R[:, :3])
+        return R[m.mask]
+
+    def jacobian(self, z, Lam_n, r_n, pi_n):
+        """Colour-grouped central differences of the exact residual (banded: nodes j-1..j+1 couple)."""
+        m = self.model
+        idx = np.full((m.N + 1, 6), -1)
+        idx[m.mask] = np.arange(m.nz)
+        rows, cols, vals = [], [], []
+        for c in range(3):
+            for d in range(6):
+                nodes = np.arange(c, m.N + 1, 3)
+                nodes = nodes[m.mask[nodes, d]]
+                if len(nodes) == 0:
+                    continue
+                e = np.zeros((m.N + 1, 6))
+                step = 1e-6 * (m.ds if d < 3 else 1.0)
+                e[nodes, d] = step
+                dz = e[m.mask]
+                dR = (self.residual(z + dz, Lam_n, r_n, pi_n) - self.residual(z - dz, Lam_n, r_n, pi_n)) / (2 * step)
+                # column of node j, direction d, touches rows of nodes j-1..j+1
+                Rfull = np.zeros((m.N + 1, 6))
+                Rfull[m.mask] = dR
+                for j in nodes:
+                    lo, hi = max(j - 1, 0), min(j + 1, m.N)
+                    blk = Rfull[lo:hi + 1]
+                    ridx = idx[lo:hi + 1]
+                    keep = ridx >= 0
+                    rows.append(ridx[keep])
+                    cols.append(np.full(keep.sum(), idx[j, d]))
+                    vals.append(blk[keep])
+        return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m.nz, m.nz))
+
+    def step(self):
+        m, st = self.model, self.state
+        N = m.N
+        Lam_n, r_n = _unpack(st.q, N)
+        pi_n = st.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
+        guess = st.v.reshape(2, N + 1, 3)
+        # the last step's body-frame displacement and xi: exact for a rigid rotation
+        u0 = np.concatenate([guess[0], guess[1]], axis=1)
+        z0 = u0[m.mask]
+        F = lambda z: self.residual(z, Lam_n, r_n, pi_n)  # noqa: E731
+        Jf = lambda z: self.jacobian(z, Lam_n, r_n, pi_n)  # noqa: E731
+        res = newton(F, Jf, z0, self.scale, self.tol, self.max_iter, self._factor)
+        if not res.converged:
+            # a poor extrapolation (e.g. stiff modes that the midpoint rule flips every step): retry with a
+            # damped full Newton from the extrapolation, then from rest
+            s = self.stats
+            s.fallbacks = getattr(s, "fallbacks", 0) + 1
+            z_rest = np.zeros_like(z0)
+            res2 = newton_damped(F, Jf, z0, self.scale, self.tol, 4 * self.max_iter)
+            if not res2.converged:
+                res2 = newton_damped(F, Jf, z_rest, self.scale, self.tol, 4 * self.max_iter)
+            res2.n_residual += res.n_residual
+            res2.n_jacobian += res.n_jacobian
+            res2.iterations += res.iterations
+            res = res2
+            self._factor = None
+        if not res.converged:
+            self._factor = None
+            raise SolverError(
+                f"Newton failed at step {st.n + 1} (t = {st.t + self.h:.6g} s): {res.message}; scaled update "
+                f"{res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; try a smaller time.step",
+                step=st.n + 1, time=st.t + self.h, residual=res.error, rate=res.rate)
+        if res.message != "damped Newton":
+            self._factor = res.factor
+        r_1, xi = self._split(res.z, Lam_n, r_n)
+        Lam_1 = Lam_n @ cay(xi)
+        D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.torque_force(self.h, Lam_1)
+        p1 = np.concatenate([D2[:, :3].ravel(), D2[:, 3:].ravel()])
+        v = np.concatenate([np.einsum("nji,nj->ni", Lam_n, r_1 - r_n).ravel(), xi.ravel()])
+        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1), p1, np.empty(0), v, st.q.copy())
+        s = self.stats
+        s.iterations, s.n_residual, s.n_jacobian = res.iterations, res.n_residual, res.n_jacobian
+        s.total_iterations += res.iterations
+        s.total_jacobians += res.n_jacobian
+        return self.state
+
+    # -- monitors and fields -------------------------------------------------------------
+
+    def monitors(self):
+        m, st = self.model, self.state
+        N = m.N
+        Lam, r = _unpack(st.q, N)
+        p = st.p[: 3 * (N + 1)].reshape(N + 1, 3)
+        Pi = st.p[3 * (N + 1):].reshape(N + 1, 3)
+        pot = m.level_energy(Lam, r, p, Pi)
+        out = {"kinetic_energy": pot.pop("kinetic")}
+        for k, v in pot.items():
+            out[f"energy_{k}"] = v
+        out["energy"] = out["kinetic_energy"] + sum(pot.values())
+        out["mass"] = float(np.sum(m.section.rhoA * m.w))
+        out["linear_momentum"] = p.sum(0)
+        out["angular_momentum"] = np.cross(r, p).sum(0) + np.einsum("nij,nj->i", Lam, Pi)
+        out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        out["newton_iterations"] = self.stats.iterations
+        return out
+
+    def fields(self):
+        Lam, r = _unpack(self.state.q, self.model.N)
+        return {"rod/r": r.copy(), "rod/Lambda": Lam.copy()}
+
+
+# ---------------------------------------------------------------------------
+# statics and linear modes
+
+
+def _potential_gradient(model, Lam, r, load_factor=1.0):
+    """d(-U)/d(dr, sigma) of the potential at a configuration (N+1, 6), including the tip torque."""
+    saved = model.force.copy(), model.g.copy()
+    model.force = saved[0] * load_factor
+    model.g = saved[1] * load_factor
+    try:
+        xi = np.zeros_like(r)
+        # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and both levels
+        g = model.derivative(1.0, Lam, r, xi, r, level=0) + model.derivative(1.0, Lam, r, xi, r, level=1)
+    finally:
+        model.force, model.g = saved
+    if np.any(model.torque):
+        g[-1, 3:] += load_factor * (Lam[-1].T @ model.torque)
+    return g
+
+
+def static_equilibrium(model, steps=1, tol=1e-10, max_iter=60):
+    """Minimise the discrete potential by Newton on SE(3)^(N+1) with load continuation.
+
+    Returns (Lambda, r, info).  Increments are applied as Lambda cay(sigma), r + dr.
+    """
+    Lam, r = model.Lam0.copy(), model.r0.copy()
+    mask = model.mask
+    info = {"load_steps": 0, "iterations": 0}
+    n_steps = steps
+    while True:
+        ok = True
+        Lam_s, r_s = Lam.copy(), r.copy()
+        for k in range(1, n_steps + 1):
+            lf = k / n_steps
+            for it in range(max_iter):
+                g = _potential_gradient(model, Lam_s, r_s, lf)[mask]
+                # Jacobian of the gradient by central differences along the retraction
+                n = model.nz
+                H = np.zeros((n, n))
+                for i in range(n):
+                    e = np.zeros(n)
+                    e[i] = 1e-6 * (model.ds if _is_translation(mask, i) else 1.0)
+                    gp = _potential_gradient(model, *_retract(Lam_s, r_s, e, mask), lf)[mask]
+                    gm = _potential_gradient(model, *_retract(Lam_s, r_s, -e, mask), lf)[mask]
+                    H[:, i] = (gp - gm) / (2 * e[i])
+                dz = -np.linalg.solve(H, g)
+                Lam_s, r_s = _retract(Lam_s, r_s, dz, mask)
+                info["iterations"] += 1
+                if np.max(np.abs(dz)) < tol * max(model.ds, 1.0):
+                    break
+            else:
+                ok = False
+                break
+        if ok:
+            info["load_steps"] = n_steps
+            return Lam_s, r_s, info
+        if n_steps >= 256:
+            raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
+        n_steps *= 2
+
+
+def _is_translation(mask, i):
+    d = np.nonzero(mask.ravel())[0][i] % 6
+    return d < 3
+
+
+def _retract(Lam, r, z, mask):
+    u = np.zeros(mask.shape)
+    u[mask] = z
+    return Lam @ cay(u[:, 3:]), r + u[:, :3]
+
+
+def rod_modes(model, count=20, vectors=False):
+    """Eigenfrequencies of the rod linearised about its initial state (mass and stiffness from L_d)."""
+    import scipy.linalg as sla
+
+    mask = model.mask
+    n = model.nz
+    K = np.zeros((n, n))
+    Lam, r = model.Lam0, model.r0
+    for i in range(n):
+        e = np.zeros(n)
+        e[i] = 1e-6 * (model.ds if _is_translation(mask, i) else 1.0)
+        gp = _potential_gradient(model, *_retract(Lam, r, e, mask))[mask]
+        gm = _potential_gradient(model, *_retract(Lam, r, -e, mask))[mask]
+        K[:, i] = -(gp - gm) / (2 * e[i])
+    K = 0.5 * (K + K.T)
+    Mfull = np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
+                            model.section.inertia[None, :] * model.w[:, None]], axis=1)
+    Mv = Mfull[mask]
+    w2, X = sla.eigh(K, np.diag(Mv))
+    res = []
+    for lam in w2[:count]:
+        if lam >= -1e-9 * max(abs(w2[-1]), 1.0):
+            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
+        else:
+            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
+    res.sort(key=lambda m: m["frequency"])
+    return (res, X[:, :count]) if vectors else res
