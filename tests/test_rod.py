@@ -105,3 +105,109 @@ def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
     assert worst["P"] < 1e-12 and worst["J"] < 1e-12, worst
     assert worst["orth"] < 1e-13, worst
     assert worst["E"] < 0.05, worst
+
+
+# -- the PyElastica cantilever section (ANCHORS.md): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
+
+def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):
+    G = E / 1.5
+    A, I = math.pi * rad ** 2, math.pi * rad ** 4 / 4
+    sec = dict(mass_per_length=rho * A, rotary_inertia=rho * I, bending_stiffness=E * I, torsional_stiffness=G * 2 * I,
+               axial_stiffness=E * A, shear_stiffness=4.0 / 3.0 * G * A)
+    if stretch_factor:
+        sec["axial_stiffness"] = sec["shear_stiffness"] = stretch_factor * E * I
+    return sec
+
+
+def _bending(freqs, targets):
+    freqs = np.asarray(freqs)
+    return np.array([freqs[np.argmin(np.abs(freqs - w))] for w in targets])
+
+
+@pytest.mark.validation
+def test_cantilever_frequencies_against_timoshenko_and_euler_bernoulli_order_two():
+    from varint.analysis import euler_bernoulli_cantilever, timoshenko_cantilever
+
+    sec = solid_section()
+    tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"], sec["rotary_inertia"], 1.0)
+    eb = euler_bernoulli_cantilever(sec["bending_stiffness"], sec["mass_per_length"], 1.0)
+    errs = []
+    for N in (25, 50, 100):
+        model = build_model(rod_scene(nodes=N + 1, dimension=2, section=sec, ends=("clamped", "free"), measure="reference"))
+        f = _bending([m["frequency"] for m in rod_modes(model, count=12)], tim)
+        errs.append(np.abs(f / tim - 1))
+    errs = np.array(errs)
+    orders = np.log2(errs[:-1] / errs[1:])
+    assert np.all(np.abs(orders - 2) < 0.2), orders
+    assert np.all(errs[-1] < 1e-4)  # 100 elements: 2.6e-5, 2.4e-5, 5.9e-5
+    # Euler-Bernoulli differs from Timoshenko by shear and rotary inertia: (r/L)^2-small for this rod
+    assert np.all(np.abs(f / eb - 1) < 3e-3)
+
+
+@pytest.mark.validation
+def test_3d_modes_equal_planar_modes_in_plane():
+    sec = solid_section()
+    f2 = [m["frequency"] for m in rod_modes(build_model(rod_scene(nodes=21, dimension=2, section=sec, ends=("clamped", "free"))), count=4)]
+    f3 = [m["frequency"] for m in rod_modes(build_model(rod_scene(nodes=21, dimension=3, section=sec, ends=("clamped", "free"))), count=8)]
+    # every planar bending frequency appears twice in 3D (two bending planes)
+    for w in f2[:3]:
+        assert np.sum(np.isclose(f3, w, rtol=1e-6)) == 2
+
+
+@pytest.mark.validation
+def test_axial_and_torsional_wave_speeds():
+    """Clamped-free axial and torsional modes: omega_n = (2n-1) pi c / (2L), c = sqrt(E/rho), sqrt(G/rho)."""
+    sec = solid_section(E=1e6)
+    model = build_model(rod_scene(nodes=101, dimension=3, section=sec, ends=("clamped", "free"), measure="reference"))
+    f = np.array([m["frequency"] for m in rod_modes(model, count=60)])
+    c_ax, c_tor = math.sqrt(1e6 / 1000.0), math.sqrt(1e6 / 1.5 / 1000.0)
+    for c in (c_ax, c_tor):
+        for n in (1, 2):
+            w = (2 * n - 1) * math.pi * c / 2.0
+            assert np.min(np.abs(f / w - 1)) < 2e-4
+
+
+def test_static_cantilever_against_the_elastica():
+    """Dead tip load P L^2 / EI = 4: tip rotation 64 degrees; stiff stretch/shear to compare with the inextensible elastica."""
+    from varint.analysis import elastica_cantilever_tip
+
+    sec = solid_section(stretch_factor=1e6)
+    EI = sec["bending_stiffness"]
+    xe, ye, the = elastica_cantilever_tip(4 * EI, EI, 1.0)
+    assert abs(math.degrees(the)) > 60
+    model = build_model(rod_scene(nodes=51, dimension=2, section=sec, ends=("clamped", "free"), measure="reference",
+                                  load={"force": [0.0, -4 * EI, 0.0]}))
+    Lam, r, info = static_equilibrium(model)
+    assert abs(r[-1, 0] - xe) < 3e-4 and abs(r[-1, 1] - ye) < 3e-4, (r[-1], xe, ye)
+    tip_angle = math.atan2(Lam[-1][1, 0], Lam[-1][0, 0])
+    assert abs(tip_angle - the) < 1e-3
+
+
+def test_gravity_changes_momentum_by_exactly_m_g_h():
+    g = np.array([0.0, -9.81, 0.0])
+    model = build_model(rod_scene(nodes=11, h=1e-3, section=STIFF, measure="reference", gravity=list(g),
+                                  initial={"angular_velocity": [3.0, 5.0, -2.0]}))
+    sim = RodSimulation(model)
+    mass = sim.monitors()["mass"]
+    P_prev, J_prev = sim.monitors()["linear_momentum"], sim.monitors()["angular_momentum"]
+    for _ in range(50):
+        sim.step()
+        mo = sim.monitors()
+        assert np.allclose(mo["linear_momentum"] - P_prev, mass * g * sim.h, rtol=0, atol=1e-13)
+        # gravity exerts no torque about its own axis
+        assert abs(mo["angular_momentum"][1] - J_prev[1]) < 1e-13
+        P_prev, J_prev = mo["linear_momentum"], mo["angular_momentum"]
+
+
+def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
+    from varint import run_scene
+    from varint.io import read_run
+
+    scene = rod_scene(nodes=11, h=1e-3, end=2e-2, section=STIFF, initial={"angular_velocity": [0.0, 0.0, 5.0]})
+    run_scene(scene, str(tmp_path / "rod.h5"), progress=False)
+    run = read_run(tmp_path / "rod.h5")
+    assert run["fields"]["rod/r"].shape == (21, 11, 3)
+    assert run["fields"]["rod/Lambda"].shape == (21, 11, 3, 3)
+    for k in ("energy", "kinetic_energy", "linear_momentum", "angular_momentum", "frame_orthogonality"):
+        assert k in run["monitors"]
+    assert np.max(run["monitors"]["frame_orthogonality"]) < 1e-14

@@ -17,7 +17,8 @@ import scipy.sparse as sp
 
 from .errors import VarintError
 
-__all__ = ["linearization", "modes", "dispersion_branches", "webster_frequencies"]
+__all__ = ["linearization", "modes", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
+           "timoshenko_cantilever", "elastica_cantilever_tip"]
 
 
 def linearization(model, z=None):
@@ -108,3 +109,77 @@ def webster_frequencies(area, L, c, count, omega_max=None):
         if len(roots) == count:
             break
     return np.array(roots)
+
+
+# ---------------------------------------------------------------------------
+# classical beam results, solved independently of the lattice (for validation)
+
+EULER_BERNOULLI_CLAMPED_FREE = (1.8751040687119611, 4.6940911329741745, 7.8547574382376126, 10.995540734875467)
+
+
+def euler_bernoulli_cantilever(EI, rhoA, L, count=3):
+    """omega_n = (beta_n L)^2 sqrt(EI / (rhoA L^4)) of a clamped-free Euler-Bernoulli beam."""
+    return np.array([b * b * math.sqrt(EI / (rhoA * L ** 4)) for b in EULER_BERNOULLI_CLAMPED_FREE[:count]])
+
+
+def timoshenko_cantilever(EI, kGA, rhoA, rhoI, L, count=3):
+    """Clamped-free Timoshenko frequencies by shooting (scipy solve_ivp + brentq).
+
+    -w^2 rhoA W = kGA (W'' - P'),  -w^2 rhoI P = EI P'' + kGA (W' - P);
+    W = P = 0 at s = 0, kGA (W' - P) = EI P' = 0 at s = L.
+    """
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    def det(w):
+        def rhs(s, y):
+            W, P, dW, dP = y
+            return [dW, dP, dP - w * w * rhoA * W / kGA, (-w * w * rhoI * P - kGA * (dW - P)) / EI]
+
+        cols = []
+        for y0 in ([0, 0, 1, 0], [0, 0, 0, 1]):
+            y = solve_ivp(rhs, (0, L), y0, rtol=1e-12, atol=1e-14, method="DOP853").y[:, -1]
+            cols.append([kGA * (y[2] - y[1]), EI * y[3]])
+        return cols[0][0] * cols[1][1] - cols[0][1] * cols[1][0]
+
+    guesses = euler_bernoulli_cantilever(EI, rhoA, L, count + 1)
+    grid = np.linspace(0.3 * guesses[0], 1.05 * guesses[count - 1] + 0.5 * (guesses[count] - guesses[count - 1]), 400 * count)
+    vals = [det(w) for w in grid]
+    roots = []
+    for (a, fa), (b, fb) in zip(zip(grid, vals), zip(grid[1:], vals[1:])):
+        if fa * fb < 0:
+            roots.append(brentq(det, a, b, xtol=1e-12, rtol=1e-14))
+        if len(roots) == count:
+            break
+    return np.array(roots)
+
+
+def elastica_cantilever_tip(load, EI, L):
+    """Inextensible elastica of a cantilever (clamped at s = 0 along +x) under a dead tip load -load*E_y.
+
+    theta'' = -(load/EI) cos(theta), theta(0) = 0, theta'(L) = 0, solved with scipy's solve_bvp.
+    Returns (x_tip, y_tip, theta_tip).
+    """
+    from scipy.integrate import solve_bvp
+
+    k = load / EI
+    s = np.linspace(0.0, L, 401)
+
+    def f(s, y):  # y = (theta, theta', x, y)
+        return np.vstack([y[1], -k * np.cos(y[0]), np.cos(y[0]), np.sin(y[0])])
+
+    def bc(ya, yb):
+        return np.array([ya[0], yb[1], ya[2], ya[3]])
+
+    guess = np.zeros((4, s.size))
+    guess[2] = s
+    # continuation in the load keeps solve_bvp on the physical (downward) branch
+    sol = None
+    for frac in np.linspace(0.1, 1.0, 10):
+        k = frac * load / EI
+        sol = solve_bvp(f, bc, s, guess if sol is None else sol.sol(s), tol=1e-10, max_nodes=100000)
+        if not sol.success:
+            raise RuntimeError(sol.message)
+    th, _, x, y = sol.sol(L)
+    # theta measured from +x towards -y for a downward load
+    return x, -y, -th if th > 0 else th

@@ -270,6 +270,39 @@ class RodModel:
                         "axial_stiffness": s.EA, "shear_stiffness": s.kGA, "rotary_inertia": s.rhoI}}
 
 
+def banded_jacobian(func, z, mask, ds, rel_step=1e-6):
+    """Jacobian of a node-local map by colour-grouped central differences.
+
+    ``func(z) -> (N+1, 6)`` must have the value at node j depend only on the unknowns of nodes
+    j-1..j+1 (true of every derivative of the rod's L_d); three colours then cover the band, so the
+    cost is 2 x 3 x (active directions) evaluations whatever N is.  Returns CSC (n, n) on the mask.
+    """
+    n_nodes = mask.shape[0]
+    idx = np.full(mask.shape, -1)
+    idx[mask] = np.arange(int(mask.sum()))
+    rows, cols, vals = [], [], []
+    for c in range(3):
+        for d in range(6):
+            nodes = np.arange(c, n_nodes, 3)
+            nodes = nodes[mask[nodes, d]]
+            if len(nodes) == 0:
+                continue
+            e = np.zeros(mask.shape)
+            step = rel_step * (ds if d < 3 else 1.0)
+            e[nodes, d] = step
+            dz = e[mask]
+            D = (func(z + dz) - func(z - dz)) / (2 * step)
+            for j in nodes:
+                lo, hi = max(j - 1, 0), min(j + 1, n_nodes - 1)
+                ridx = idx[lo:hi + 1]
+                keep = ridx >= 0
+                rows.append(ridx[keep])
+                cols.append(np.full(int(keep.sum()), idx[j, d]))
+                vals.append(D[lo:hi + 1][keep])
+    n = int(mask.sum())
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
 def _pack(Lam, r):
     return np.concatenate([r.ravel(), Lam.ravel()])
 
@@ -329,32 +362,13 @@ class RodSimulation:
     def jacobian(self, z, Lam_n, r_n, pi_n):
         """Colour-grouped central differences of the exact residual (banded: nodes j-1..j+1 couple)."""
         m = self.model
-        idx = np.full((m.N + 1, 6), -1)
-        idx[m.mask] = np.arange(m.nz)
-        rows, cols, vals = [], [], []
-        for c in range(3):
-            for d in range(6):
-                nodes = np.arange(c, m.N + 1, 3)
-                nodes = nodes[m.mask[nodes, d]]
-                if len(nodes) == 0:
-                    continue
-                e = np.zeros((m.N + 1, 6))
-                step = 1e-6 * (m.ds if d < 3 else 1.0)
-                e[nodes, d] = step
-                dz = e[m.mask]
-                dR = (self.residual(z + dz, Lam_n, r_n, pi_n) - self.residual(z - dz, Lam_n, r_n, pi_n)) / (2 * step)
-                # column of node j, direction d, touches rows of nodes j-1..j+1
-                Rfull = np.zeros((m.N + 1, 6))
-                Rfull[m.mask] = dR
-                for j in nodes:
-                    lo, hi = max(j - 1, 0), min(j + 1, m.N)
-                    blk = Rfull[lo:hi + 1]
-                    ridx = idx[lo:hi + 1]
-                    keep = ridx >= 0
-                    rows.append(ridx[keep])
-                    cols.append(np.full(keep.sum(), idx[j, d]))
-                    vals.append(blk[keep])
-        return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m.nz, m.nz))
+
+        def full(zz):
+            R = np.zeros((m.N + 1, 6))
+            R[m.mask] = self.residual(zz, Lam_n, r_n, pi_n)
+            return R
+
+        return banded_jacobian(full, z, m.mask, m.ds)
 
     def step(self):
         m, st = self.model, self.state
@@ -447,42 +461,51 @@ def _potential_gradient(model, Lam, r, load_factor=1.0):
     return g
 
 
-def static_equilibrium(model, steps=1, tol=1e-10, max_iter=60):
+def _force_map(model, Lam, r, load_factor=1.0):
+    """z -> generalised force -dU/d(dr, sigma) at the retracted configuration, (N+1, 6)."""
+    mask = model.mask
+
+    def f(z):
+        return _potential_gradient(model, *_retract(Lam, r, z, mask), load_factor)
+
+    return f
+
+
+def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30):
     """Minimise the discrete potential by Newton on SE(3)^(N+1) with load continuation.
 
-    Returns (Lambda, r, info).  Increments are applied as Lambda cay(sigma), r + dr.
+    Returns (Lambda, r, info).  Increments are applied as Lambda cay(sigma), r + dr; the
+    load is applied in ``steps`` equal increments, doubled until every increment converges.
     """
-    Lam, r = model.Lam0.copy(), model.r0.copy()
+    import scipy.sparse.linalg as spla
+
     mask = model.mask
-    info = {"load_steps": 0, "iterations": 0}
+    scale = np.where(np.nonzero(mask.ravel())[0] % 6 < 3, model.ds, 1.0)
     n_steps = steps
     while True:
-        ok = True
-        Lam_s, r_s = Lam.copy(), r.copy()
+        Lam, r = model.Lam0.copy(), model.r0.copy()
+        ok, iters = True, 0
         for k in range(1, n_steps + 1):
             lf = k / n_steps
-            for it in range(max_iter):
-                g = _potential_gradient(model, Lam_s, r_s, lf)[mask]
-                # Jacobian of the gradient by central differences along the retraction
-                n = model.nz
-                H = np.zeros((n, n))
-                for i in range(n):
-                    e = np.zeros(n)
-                    e[i] = 1e-6 * (model.ds if _is_translation(mask, i) else 1.0)
-                    gp = _potential_gradient(model, *_retract(Lam_s, r_s, e, mask), lf)[mask]
-                    gm = _potential_gradient(model, *_retract(Lam_s, r_s, -e, mask), lf)[mask]
-                    H[:, i] = (gp - gm) / (2 * e[i])
-                dz = -np.linalg.solve(H, g)
-                Lam_s, r_s = _retract(Lam_s, r_s, dz, mask)
-                info["iterations"] += 1
-                if np.max(np.abs(dz)) < tol * max(model.ds, 1.0):
+            for _ in range(max_iter):
+                f = _force_map(model, Lam, r, lf)
+                z0 = np.zeros(model.nz)
+                g = f(z0)[mask]
+                H = banded_jacobian(f, z0, mask, model.ds)
+                dz = -spla.spsolve(H.tocsc(), g)
+                if not np.all(np.isfinite(dz)):
+                    ok = False
+                    break
+                Lam, r = _retract(Lam, r, dz, mask)
+                iters += 1
+                if np.max(np.abs(dz) / scale) < tol:
                     break
             else:
                 ok = False
+            if not ok:
                 break
         if ok:
-            info["load_steps"] = n_steps
-            return Lam_s, r_s, info
+            return Lam, r, {"load_steps": n_steps, "iterations": iters}
         if n_steps >= 256:
             raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
         n_steps *= 2
@@ -499,25 +522,23 @@ def _retract(Lam, r, z, mask):
     return Lam @ cay(u[:, 3:]), r + u[:, :3]
 
 
-def rod_modes(model, count=20, vectors=False):
-    """Eigenfrequencies of the rod linearised about its initial state (mass and stiffness from L_d)."""
+def rod_modes(model, count=20, vectors=False, Lam=None, r=None):
+    """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
+
+    Stiffness: the Hessian of the discrete potential in (dr, sigma) (banded differences of the
+    exact force); mass: the lumped diagonal of the kinetic energy.  Returns
+    ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
+    """
     import scipy.linalg as sla
 
     mask = model.mask
-    n = model.nz
-    K = np.zeros((n, n))
-    Lam, r = model.Lam0, model.r0
-    for i in range(n):
-        e = np.zeros(n)
-        e[i] = 1e-6 * (model.ds if _is_translation(mask, i) else 1.0)
-        gp = _potential_gradient(model, *_retract(Lam, r, e, mask))[mask]
-        gm = _potential_gradient(model, *_retract(Lam, r, -e, mask))[mask]
-        K[:, i] = -(gp - gm) / (2 * e[i])
+    Lam = model.Lam0 if Lam is None else Lam
+    r = model.r0 if r is None else r
+    K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
     K = 0.5 * (K + K.T)
     Mfull = np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
                             model.section.inertia[None, :] * model.w[:, None]], axis=1)
-    Mv = Mfull[mask]
-    w2, X = sla.eigh(K, np.diag(Mv))
+    w2, X = sla.eigh(K, np.diag(Mfull[mask]))
     res = []
     for lam in w2[:count]:
         if lam >= -1e-9 * max(abs(w2[-1]), 1.0):

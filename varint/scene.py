@@ -113,7 +113,7 @@ SCHEMA = MappingProxyType({
         Key("shear_modulus", "float", None, "Pa", "material form: shear modulus G (default E/3)", low=0.0, low_open=True),
         Key("density", "float", None, "kg/m^3", "material form: density", low=0.0, low_open=True),
         Key("thickness", "float", None, "m", "material form: wall thickness of the annulus whose inner radius is tube.radius", low=0.0, low_open=True),
-        Key("shear_coefficient", "float", 0.75, "", "material form: k in the shear stiffness k G A (0.75 = PyElastica's 1/alpha_c)", low=0.0, low_open=True),
+        Key("shear_coefficient", "float", 4.0 / 3.0, "", "material form: k in the shear stiffness k G A (default 4/3, PyElastica's alpha_c, for comparable runs)", low=0.0, low_open=True),
         Key("mass_per_length", "float", None, "kg/m", "stiffness form: rho A", low=0.0, low_open=True),
         Key("rotary_inertia", "float", None, "kg m", "stiffness form: rho I about a bending axis, per length (polar: twice)", low=0.0, low_open=True),
         Key("bending_stiffness", "float", None, "N m^2", "stiffness form: E I", low=0.0, low_open=True),
