@@ -63,8 +63,12 @@ def cmd_check(args):
           + f"; total {d['unknowns_total']} ({d['inertial_unknowns']} inertial, {d['algebraic_unknowns']} algebraic)")
     print(f"  expected invariants: {', '.join(d['invariants'])}")
     lat = d["lattice"]
-    print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, "
-          f"{'periodic' if lat['periodic'] else 'closed'} ends")
+    if "rod" in d:
+        print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m")
+        print("  rod: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["rod"].items()))
+    else:
+        print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, "
+              f"{'periodic' if lat['periodic'] else 'closed'} ends")
     if "wall" in d:
         print("  wall: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["wall"].items()))
     if "fluid" in d:
@@ -97,15 +101,49 @@ def cmd_plot(args):
 def cmd_modes(args):
     from .analysis import modes
     from .model import build_model
+    from .rod import RodModel, rod_modes
     from .scene import load_scene
 
     model = build_model(load_scene(args.scene))
-    res = modes(model, count=args.count)
+    res = rod_modes(model, count=args.count) if isinstance(model, RodModel) else modes(model, count=args.count)
     if args.json:
         print(json.dumps(_jsonable({"modes": res})))
     else:
         for i, m in enumerate(res):
             print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s")
+    return 0
+
+
+def cmd_static(args):
+    import numpy as np
+
+    from .errors import VarintError as _VE
+    from .io import RunWriter
+    from .model import build_model
+    from .rod import RodModel, RodSimulation, _pack, static_equilibrium
+    from .runner import default_output
+    from .scene import load_scene
+    from .stepper import State
+
+    scene = load_scene(args.scene)
+    model = build_model(scene)
+    if not isinstance(model, RodModel):
+        raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes only in this version")
+    Lam, r, info = static_equilibrium(model)
+    sim = RodSimulation(model)
+    n6 = 6 * (model.N + 1)
+    sim.state = State(0, 0.0, _pack(Lam, r), np.zeros(n6), np.empty(0), np.zeros(n6))
+    out = args.output or default_output(scene, args.scene).replace(".h5", "_static.h5")
+    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
+    try:
+        w.append(0.0, sim.monitors(), sim.fields(), sim.state)
+        w.f.attrs["static"] = True
+        w.f.attrs["load_steps"] = info["load_steps"]
+    finally:
+        w.close()
+    tip = r[-1]
+    print(f"wrote {out}: static equilibrium in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
+          f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0
 
 
@@ -131,6 +169,10 @@ def build_parser():
     pl.add_argument("file")
     pl.add_argument("-d", "--outdir", default=None, help="folder for the PNGs (default: beside the file)")
     pl.set_defaults(func=cmd_plot)
+    s = sub.add_parser("static", help="static equilibrium of a [rod] scene, written as one frame")
+    s.add_argument("scene")
+    s.add_argument("-o", "--output", help="run file (default: SCENE_static.h5)")
+    s.set_defaults(func=cmd_static)
     m = sub.add_parser("modes", help="eigenfrequencies of the model linearised about the initial state")
     m.add_argument("scene")
     m.add_argument("--json", action="store_true")

@@ -48,6 +48,27 @@ def plot_run(path, outdir=None):
     plt.close(fig)
     written.append(p)
 
+    if "rod/r" in fld:
+        r = fld["rod/r"]
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4.5), constrained_layout=True)
+        picks = np.unique(np.linspace(0, len(t) - 1, min(len(t), 8)).astype(int))
+        cmap = plt.get_cmap("viridis")
+        for i, k in enumerate(picks):
+            c = cmap(i / max(len(picks) - 1, 1))
+            axes[0].plot(r[k, :, 0], r[k, :, 1], color=c, label=f"t = {t[k]:.3g} s")
+            axes[1].plot(r[k, :, 0], r[k, :, 2], color=c)
+        for ax, lab in zip(axes, ("y", "z")):
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel(f"{lab} [m]")
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.grid(alpha=0.3)
+        axes[0].legend(fontsize=7)
+        fig.suptitle("centreline snapshots", fontsize=10)
+        p = outdir / f"{stem}_fields.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
+
     maps = []
     if "fluid/pressure" in fld:
         s = fld["fluid/s"]

@@ -422,8 +422,9 @@ class RodSimulation:
         m, st = self.model, self.state
         N = m.N
         Lam, r = _unpack(st.q, N)
-        p = st.p[: 3 * (N + 1)].reshape(N + 1, 3)
-        Pi = st.p[3 * (N + 1):].reshape(N + 1, 3)
+        # supported components carry reaction impulses in D2 L_d, not momentum: leave them out
+        p = st.p[: 3 * (N + 1)].reshape(N + 1, 3) * m.mask[:, :3]
+        Pi = st.p[3 * (N + 1):].reshape(N + 1, 3) * m.mask[:, 3:]
         pot = m.level_energy(Lam, r, p, Pi)
         out = {"kinetic_energy": pot.pop("kinetic")}
         for k, v in pot.items():
