@@ -241,3 +241,32 @@ def test_hard_stiff_shear_and_stretch_at_100x_the_explicit_limit():
     assert np.max(np.abs(y)) < 0.17  # bounded: the tip swings between its +-0.161 m extremes
     omega = zero_crossing_frequency(np.array(t), np.array(y))
     assert omega == pytest.approx(w1, rel=2e-3)  # measured 5.6e-4
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("wave", ["axial", "torsional"])
+def test_wave_order_two_in_h(wave):
+    """Released from the first axial (torsional) mode shape: the tip response converges at order 2 in h."""
+    sec = solid_section(E=1e6)
+    c = math.sqrt(1e6 / 1000.0) if wave == "axial" else math.sqrt(1e6 / 1.5 / 1000.0)
+    T = 0.6 * 4.0 / c  # 0.6 of the first period 4L/c
+
+    def tip(h):
+        model = build_model(rod_scene(nodes=21, dimension=3, section=sec, ends=("clamped", "free"), measure="reference", h=h))
+        s = np.linspace(0.0, 1.0, 21)
+        amp = 1e-3 * np.sin(0.5 * math.pi * s)
+        if wave == "axial":
+            model.r0 = model.r0 + np.outer(amp, [1.0, 0.0, 0.0])
+        else:
+            model.Lam0 = cay(np.outer(amp, [1.0, 0.0, 0.0]) * 2.0)  # twist angle ~ 1e-3 sin(pi s / 2)
+        sim = RodSimulation(model)
+        for _ in range(int(round(T / h))):
+            sim.step()
+        Lam, r = sim.state.q[3 * 21:].reshape(21, 3, 3), sim.state.q[:3 * 21].reshape(21, 3)
+        return r[-1, 0] if wave == "axial" else cay_inv(Lam[-1])[0]
+
+    h0 = T / 20
+    ref = tip(h0 / 32)
+    errs = [abs(tip(h0 / k) - ref) for k in (1, 2, 4)]
+    orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    assert np.all(np.abs(orders - 2) < 0.2), (errs, orders)
