@@ -53,7 +53,8 @@ def factorize(J):
         return None
 
 
-def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
+def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refresh=RATE_REFRESH,
+           chord_iterations=5):
     """Solve residual(z) = 0 from z0.
 
     Parameters
@@ -66,6 +67,12 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
         below ``100 tol`` with a fresh Jacobian).
     factor : object, optional
         A factorisation from an earlier call, reused until the rate degrades.
+    rate_refresh : float
+        Contraction rate above which the Jacobian is refreshed: low when a Jacobian is cheap
+        relative to a residual (the tube's sparse Hessian), higher when it is dear (the rod's
+        banded differences cost ~40 residuals).
+    chord_iterations : int
+        Iterations allowed on an inherited Jacobian before it is refreshed regardless of rate.
     """
     z = np.array(z0, dtype=np.float64, copy=True)
     n_res = n_jac = 0
@@ -95,8 +102,8 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None):
             return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac)
         if err_prev is not None:
             rate = err / err_prev
-            slow_inherited = jac_iter is None and it >= 5  # an old Jacobian that needs many iterations
-            if not np.isfinite(rate) or rate > RATE_REFRESH or slow_inherited:
+            slow_inherited = jac_iter is None and it >= chord_iterations  # an old Jacobian needing many iterations
+            if not np.isfinite(rate) or rate > rate_refresh or slow_inherited:
                 recent = jac_iter is not None and jac_iter >= it - 2
                 if recent and err <= 100 * tol:
                     # stagnating just above tol with an up-to-date Jacobian: round-off of an ill-conditioned system
