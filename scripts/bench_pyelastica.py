@@ -1,0 +1,177 @@
+"""varint's Cayley-map midpoint rod against PyElastica's PositionVerlet, side by side in one run.
+
+Case (ANCHORS.md): cantilever L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3, E = 1e6 and 1e7 Pa,
+G = E/1.5, 100 elements, released from the first Euler-Bernoulli mode shape with a 1 cm tip
+deflection, no damping.  Reported per tool and step size: wall time for 10 first-mode periods, the
+error of the tip trajectory against the analytic first-mode motion 0.01 cos(omega_T t) (omega_T: the
+Timoshenko first frequency, scipy), the energy deviation, and the first frequency measured from the
+tip signal.  Also the largest stable PyElastica step (bisection on short runs).
+
+PyElastica is an optional comparison tool, not a dependency:  pip install -e '.[compare]'
+Run:  python scripts/bench_pyelastica.py [--quick]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+from helpers import to_toml, zero_crossing_frequency  # noqa: E402
+
+from varint import build_model, parse_scene  # noqa: E402
+from varint.analysis import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
+from varint.lie import cay  # noqa: E402
+from varint.rod import RodSimulation  # noqa: E402
+
+L, RAD, RHO, N_EL, TIP = 1.0, 0.01, 1000.0, 100, 0.01
+A, I = math.pi * RAD ** 2, math.pi * RAD ** 4 / 4
+
+
+def mode_shape(s):
+    """First clamped-free Euler-Bernoulli mode, scaled to a TIP deflection, and its slope."""
+    b = EULER_BERNOULLI_CLAMPED_FREE[0] / L
+    sg = (math.cosh(b * L) + math.cos(b * L)) / (math.sinh(b * L) + math.sin(b * L))
+    phi = lambda x: np.cosh(b * x) - np.cos(b * x) - sg * (np.sinh(b * x) - np.sin(b * x))  # noqa: E731
+    dphi = lambda x: b * (np.sinh(b * x) + np.sin(b * x) - sg * (np.cosh(b * x) - np.cos(b * x)))  # noqa: E731
+    return TIP * phi(s) / phi(L), TIP * dphi(s) / phi(L)
+
+
+def reference(E):
+    G = E / 1.5
+    w = timoshenko_cantilever(E * I, 4.0 / 3.0 * G * A, RHO * A, RHO * I, L, count=1)[0]
+    return w
+
+
+# ----------------------------------------------------------------------------- varint
+
+
+def varint_run(E, h, periods, w_ref):
+    G = E / 1.5
+    sec = dict(mass_per_length=RHO * A, rotary_inertia=RHO * I, bending_stiffness=E * I, torsional_stiffness=G * 2 * I,
+               axial_stiffness=E * A, shear_stiffness=4.0 / 3.0 * G * A)
+    d = {"title": "cantilever", "tube": {"length": L, "nodes": N_EL + 1, "radius": RAD},
+         "rod": dict(sec, dimension=2, measure="reference", ends={"s0": "clamped", "sL": "free"}),
+         "time": {"step": h, "end": 1.0}}
+    model = build_model(parse_scene(to_toml(d)))
+    s = np.linspace(0.0, L, N_EL + 1)
+    y, dy = mode_shape(s)
+    model.r0 = np.stack([s, y, np.zeros_like(s)], axis=1)
+    model.Lam0 = cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1))
+    sim = RodSimulation(model)
+    n = int(round(periods * 2 * math.pi / w_ref / h))
+    t, tip, E_ = np.empty(n), np.empty(n), np.empty(n)
+    t0 = time.perf_counter()
+    for i in range(n):
+        sim.step()
+        t[i] = sim.state.t
+        tip[i] = sim.state.q[3 * N_EL + 1]
+        E_[i] = sim.monitors()["energy"]
+    wall = time.perf_counter() - t0
+    return t, tip, E_, wall, sim.stats.total_iterations / n
+
+
+# ----------------------------------------------------------------------------- PyElastica
+
+
+def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None):
+    import elastica as ea
+
+    class Sim(ea.BaseSystemCollection, ea.Constraints):
+        pass
+
+    sim = Sim()
+    rod = ea.CosseratRod.straight_rod(N_EL, np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), L, RAD, RHO,
+                                      youngs_modulus=E, shear_modulus=E / 1.5)
+    s = np.linspace(0.0, L, N_EL + 1)
+    y, _ = mode_shape(s)
+    rod.position_collection[1, :] = y
+    # directors: d3 along each element's chord, d1 = +z (out of plane), d2 = d3 x d1
+    chord = np.diff(rod.position_collection, axis=1)
+    d3 = chord / np.linalg.norm(chord, axis=0)
+    d1 = np.zeros_like(d3)
+    d1[2] = 1.0
+    d2 = np.cross(d3.T, d1.T).T
+    rod.director_collection[0] = d1
+    rod.director_collection[1] = d2
+    rod.director_collection[2] = d3
+    sim.append(rod)
+    sim.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
+    sim.finalize()
+    stepper = ea.PositionVerlet()
+    n = check_only_steps or int(round(periods * 2 * math.pi / w_ref / dt))
+    every = max(1, n // 4000)
+    ts, tips, Es = [], [], []
+    energy = lambda: (rod.compute_translational_energy() + rod.compute_rotational_energy()  # noqa: E731
+                      + rod.compute_bending_energy() + rod.compute_shear_energy())
+    tcur = 0.0
+    t0 = time.perf_counter()
+    for i in range(n):
+        tcur = stepper.step(sim, tcur, dt)
+        if check_only_steps is None and i % every == 0:
+            ts.append(tcur)
+            tips.append(rod.position_collection[1, -1])
+            Es.append(energy())
+    wall = time.perf_counter() - t0
+    if check_only_steps is not None:
+        return bool(np.all(np.isfinite(rod.position_collection)) and np.max(np.abs(rod.position_collection[1])) < 0.1)
+    # energy sampling costs time: charge only the stepping (measure it again without callbacks)
+    return np.array(ts), np.array(tips), np.array(Es), wall
+
+
+def largest_stable_dt(E, w_ref, lo=1e-6, hi=1e-3, steps=3000):
+    for _ in range(12):
+        mid = math.sqrt(lo * hi)
+        if pyelastica_run(E, mid, 0, w_ref, check_only_steps=steps):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def summarise(t, tip, E, w_ref):
+    err = np.max(np.abs(tip - TIP * np.cos(w_ref * t))) / TIP
+    dE = np.max(np.abs(E - E[0])) / abs(E[0])
+    w = zero_crossing_frequency(t, tip)
+    return err, dE, w / w_ref - 1
+
+
+def main(quick=False):
+    periods = 2 if quick else 10
+    print(f"### Cantilever, {N_EL} elements, {periods} first-mode periods (tip error against 0.01 cos(omega_T t))\n")
+    print("| E [Pa] | tool | step [s] | steps/period | wall s | wall s per simulated s | tip error / amplitude | max energy dev. | 1st freq. error vs Timoshenko |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for E in (1e6, 1e7):
+        w = reference(E)
+        T1 = 2 * math.pi / w
+        try:
+            dt_max = largest_stable_dt(E, w)
+        except ImportError:
+            dt_max = None
+        rows = []
+        for k in ((16, 32) if quick else (16, 32, 64, 128)):
+            t, tip, En, wall, its = varint_run(E, T1 / k, periods, w)
+            err, dE, fe = summarise(t, tip, En, w)
+            rows.append(("varint midpoint", T1 / k, k, wall, wall / (periods * T1), err, dE, fe))
+        if dt_max is not None:
+            for frac in ((0.5,) if quick else (0.5, 0.25)):
+                dt = frac * dt_max
+                t, tip, En, wall = pyelastica_run(E, dt, periods, w)
+                err, dE, fe = summarise(t, tip, En, w)
+                rows.append(("PyElastica PositionVerlet", dt, T1 / dt, wall, wall / (periods * T1), err, dE, fe))
+        for name, dt, k, wall, rate, err, dE, fe in rows:
+            print(f"| {E:.0e} | {name} | {dt:.3g} | {k:.0f} | {wall:.2f} | {rate:.3g} | {err:.2e} | {dE:.2e} | {fe:+.2e} |")
+        if dt_max is not None:
+            print(f"| {E:.0e} | PyElastica largest stable dt (bisection, 3000 steps) | {dt_max:.3g} | {T1 / dt_max:.0f} | | | | | |")
+        print(f"| {E:.0e} | varint midpoint: no stability limit (linearly A-stable); step chosen for accuracy | | | | | | | |")
+        sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main(quick="--quick" in sys.argv)
