@@ -40,9 +40,9 @@ __all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "static_equ
 
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
-#: a rod Jacobian costs about 40 residuals, yet a slower chord iteration leaves a larger residual in the
-#: momentum balance (measured: 0.35 and 12 chord iterations gave 9e-13 momentum drift, 0.05 gives 1e-13)
-RATE_REFRESH_ROD = 0.05
+#: a rod Jacobian costs about 40 residuals: tolerate slow chord iterations (and iterate them to
+#: round-off, tol 1e-14, so that the residual left in the momentum balance stays ~1e-13)
+RATE_REFRESH_ROD = 0.5
 
 
 @dataclass(frozen=True)
@@ -384,8 +384,10 @@ class RodSimulation:
         z0 = u0[m.mask]
         F = lambda z: self.residual(z, Lam_n, r_n, pi_n)  # noqa: E731
         Jf = lambda z: self.jacobian(z, Lam_n, r_n, pi_n)  # noqa: E731
-        res = newton(F, Jf, z0, self.scale, self.tol, self.max_iter, self._factor, rate_refresh=RATE_REFRESH_ROD,
-                     chord_iterations=5)
+        # chord iterations cost 1/40 of a Jacobian: iterate them down to round-off instead of refreshing
+        res = newton(F, Jf, z0, self.scale, min(self.tol, 1e-14), max(self.max_iter, 40), self._factor,
+                     rate_refresh=RATE_REFRESH_ROD,
+                     chord_iterations=30)
         if not res.converged:
             # a poor extrapolation (e.g. stiff modes that the midpoint rule flips every step): retry with a
             # damped full Newton from the extrapolation, then from rest
