@@ -302,3 +302,18 @@ def test_cli_static_and_modes(tmp_path, capsys):
     modes = json.loads(capsys.readouterr().out)["modes"]
     assert len(modes) == 3 and modes[0]["frequency"] == pytest.approx(0.5558, rel=2e-3)
     assert all(m["growth_rate"] == 0.0 for m in modes)
+
+
+@pytest.mark.parametrize("level", [0, 1])
+@pytest.mark.parametrize("measure", ["paper", "reference"])
+def test_pieces_kernel_equals_numpy_reference(level, measure):
+    model = build_model(rod_scene(measure=measure, gravity=[0.3, -9.81, 0.5], load={"force": [1.0, -2.0, 0.5]}))
+    rng = np.random.default_rng(9)
+    (L0, r0), (L1, r1), _ = _random_levels(model, rng, amp=0.3)
+    xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
+    sig = (rng.standard_normal((4, model.N + 1, 3)) + 1j * rng.standard_normal((4, model.N + 1, 3))) * 1e-2
+    dr = (rng.standard_normal((4, model.N + 1, 3)) + 1j * rng.standard_normal((4, model.N + 1, 3))) * 1e-3
+    ref = model.lagrangian_pieces(1e-3, L0, r0, xi, r1, sig, dr, level)
+    fast = model.pieces_fast(1e-3, L0, r0, xi, r1, sig, dr, level)
+    for a, b in zip(ref, fast):
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-14 * np.abs(a).max())
