@@ -317,3 +317,34 @@ def test_pieces_kernel_equals_numpy_reference(level, measure):
     fast = model.pieces_fast(1e-3, L0, r0, xi, r1, sig, dr, level)
     for a, b in zip(ref, fast):
         assert np.allclose(a, b, rtol=1e-12, atol=1e-14 * np.abs(a).max())
+
+
+@pytest.mark.validation
+def test_cantilever_frequencies_from_a_time_domain_run():
+    """Released from a mix of the first three modes: each modal coordinate oscillates at its Timoshenko frequency."""
+    from helpers import zero_crossing_frequency
+    from varint.analysis import timoshenko_cantilever
+    from varint.rod import _retract
+
+    sec = solid_section()
+    tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"], sec["rotary_inertia"], 1.0)
+    h = 2 * math.pi / tim[2] / 40
+    model = build_model(rod_scene(nodes=41, dimension=2, section=sec, ends=("clamped", "free"), measure="reference", h=h))
+    res, X = rod_modes(model, count=3, vectors=True)
+    Mv = np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
+                         model.section.inertia[None, :] * model.w[:, None]], axis=1)[model.mask]
+    # 1 mm tip amplitude in each mode
+    z = sum(X[:, i] * 1e-3 / np.max(np.abs(X[1::3, i])) for i in range(3))  # planar unknowns: (x, y, theta) per node
+    Lam0, r0 = model.Lam0.copy(), model.r0.copy()
+    model.Lam0, model.r0 = _retract(Lam0, r0, z, model.mask)
+    sim = RodSimulation(model)
+    n = int(1.6 * 2 * math.pi / tim[0] / h)
+    t, q = np.empty(n), np.empty((n, 3))
+    for k in range(n):
+        sim.step()
+        Lam, r = sim.state.q[3 * 41:].reshape(41, 3, 3), sim.state.q[:3 * 41].reshape(41, 3)
+        u = np.concatenate([r - r0, cay_inv(np.swapaxes(Lam0, 1, 2) @ Lam)], axis=1)[model.mask]
+        t[k], q[k] = sim.state.t, X.T @ (Mv * u)
+    for i in range(3):
+        w = zero_crossing_frequency(t, q[:, i])
+        assert w == pytest.approx(tim[i], rel=3e-3), (i, w, tim[i])
