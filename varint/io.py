@@ -193,7 +193,9 @@ def summary(path):
     }
     if len(run["time"]) and "energy" in mon:
         E = mon["energy"]
-        d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
+        # relative to |E(0)|, or to the largest kinetic energy when the run starts at zero energy
+        ref = max(abs(E[0]), float(np.max(mon["kinetic_energy"])) if "kinetic_energy" in mon else 0.0, 1e-300)
+        d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)
         d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300)) if "mass" in mon else None
         d["newton_iterations_max"] = int(np.max(mon["newton_iterations"])) if "newton_iterations" in mon else None
     return d
