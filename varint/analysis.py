@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .errors import VarintError
 
-__all__ = ["linearization", "modes", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
+__all__ = ["linearization", "modes", "modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
            "timoshenko_cantilever", "elastica_cantilever_tip"]
 
 
@@ -45,17 +45,22 @@ def modes(model, count=20, z=None, vectors=False):
     if model.nq > 6000:
         raise VarintError("modes: the dense eigen-solver is limited to 6000 inertial unknowns")
     M, K = linearization(model, z)
+    return modes_of(K, M, count, vectors)
+
+
+def modes_of(K, M, count, vectors=False):
+    """Generalised eigenproblem K x = w^2 diag(M) x -> modes list (and shapes), in eigenvalue order.
+
+    A negative eigenvalue is an instability (frequency 0, growth rate sqrt(-w^2)) unless it is
+    round-off small; eigenvalue order lists instabilities first, then frequencies increasing.
+    """
     w2, X = sla.eigh(K, np.diag(M))
-    order = np.argsort(w2)
-    w2, X = w2[order], X[:, order]
     res = []
     for lam in w2[:count]:
-        # round-off sized negative eigenvalues are neutral modes, not instabilities
-        if lam >= -1e-10 * max(abs(w2[-1]), 1.0):
+        if lam >= -1e-9 * max(abs(w2[-1]), 1.0):
             res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
         else:
             res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
-    res.sort(key=lambda m: m["frequency"])
     return (res, X[:, :count]) if vectors else res
 
 

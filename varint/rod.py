@@ -37,7 +37,8 @@ from .lie import cay, cay_inv
 from .newton import newton, newton_damped
 from .stepper import State, StepStats
 
-__all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "static_equilibrium", "rod_modes"]
+__all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "static_equilibrium", "rod_modes", "lumped_mass",
+           "banded_jacobian"]
 
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
@@ -530,11 +531,6 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30):
         n_steps *= 2
 
 
-def _is_translation(mask, i):
-    d = np.nonzero(mask.ravel())[0][i] % 6
-    return d < 3
-
-
 def _retract(Lam, r, z, mask):
     u = np.zeros(mask.shape)
     u[mask] = z
@@ -548,24 +544,20 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None):
     exact force); mass: the lumped diagonal of the kinetic energy.  Returns
     ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
-    import scipy.linalg as sla
+    from .analysis import modes_of
 
     mask = model.mask
     Lam = model.Lam0 if Lam is None else Lam
     r = model.r0 if r is None else r
     K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
     K = 0.5 * (K + K.T)
-    Mfull = np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
-                            model.section.inertia[None, :] * model.w[:, None]], axis=1)
-    w2, X = sla.eigh(K, np.diag(Mfull[mask]))
-    res = []
-    for lam in w2[:count]:
-        if lam >= -1e-9 * max(abs(w2[-1]), 1.0):
-            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
-        else:
-            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
-    res.sort(key=lambda m: m["frequency"])
-    return (res, X[:, :count]) if vectors else res
+    return modes_of(K, lumped_mass(model)[mask], count, vectors)
+
+
+def lumped_mass(model):
+    """Diagonal of the kinetic metric per node and direction (rho A w_j for dr, I w_j for sigma), (N+1, 6)."""
+    return np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
+                           model.section.inertia[None, :] * model.w[:, None]], axis=1)
 
 
 # ---------------------------------------------------------------------------
