@@ -17,7 +17,7 @@ SECTION = {"mass_per_length": 0.3, "rotary_inertia": 1e-4, "bending_stiffness": 
 
 
 def rod_scene(nodes=11, h=1e-3, ends=("free", "free"), initial=None, load=None, gravity=None, dimension=3,
-              measure="paper", section=None, length=1.0, end=1.0):
+              measure="reference", section=None, length=1.0, end=1.0):
     rod = dict(section or SECTION, dimension=dimension, measure=measure, ends={"s0": ends[0], "sL": ends[1]})
     if initial:
         rod["initial"] = initial

@@ -108,7 +108,7 @@ SCHEMA = MappingProxyType({
     "fluid.perturbation[]": SHAPE_KEYS,
     "rod": (
         Key("dimension", "int", 3, "", "3: full SE(3) motion; 2: planar motion in the x-y plane (3 unknowns per node)", low=2, high=3),
-        Key("measure", "str", "paper", "", "paper: energy densities times |Gamma| (Lagrangian_fluid_tube); reference: per reference length", choices=("paper", "reference")),
+        Key("measure", "str", "reference", "", "reference: densities per reference length (mass per length fixed); paper: every density times |Gamma| as in Lagrangian_fluid_tube (drifts in energy for stiff stretching at large omega h, docs/validation.md)", choices=("paper", "reference")),
         Key("youngs_modulus", "float", None, "Pa", "material form: Young's modulus E", low=0.0, low_open=True),
         Key("shear_modulus", "float", None, "Pa", "material form: shear modulus G (default E/3)", low=0.0, low_open=True),
         Key("density", "float", None, "kg/m^3", "material form: density", low=0.0, low_open=True),
