@@ -237,13 +237,18 @@ class Simulation:
     # -- monitors -------------------------------------------------------------
 
     def monitors(self):
-        """Invariants and energies at the current level (energies: the step that ended here)."""
+        """Invariants and energies at the current level.
+
+        Energy: without algebraic unknowns, H(q_n, p_n) = 1/2 p M^-1 p + U(q_n) at the level (exactly
+        conserved by the midpoint rule on linear problems, whatever h); with them (quasistatic wall,
+        incompressible fluid) the energy of the step that ended here, 1/2 v M v + U(midpoint), because
+        their half-level unknowns have no value at a level.  Record 0: the initial data.
+        """
         m, st = self.model, self.state
         out = {}
-        if st.q_prev is None:
-            # level 0: the continuous energy of the initial state
+        if m.nlam == 0 or st.q_prev is None:
             pot = m.energies(m.config(np.concatenate([st.q, st.lam])))
-            v = st.v
+            v = st.p / np.where(m.mass > 0, m.mass, 1.0) if st.q_prev is not None else st.v
         else:
             pot = self.scheme.step_energies(st.q_prev, np.concatenate([st.q, st.lam]))
             v = st.v
