@@ -347,3 +347,40 @@ def test_cantilever_frequencies_from_a_time_domain_run():
     for i in range(3):
         w = zero_crossing_frequency(t, q[:, i])
         assert w == pytest.approx(tim[i], rel=3e-3), (i, w, tim[i])
+
+
+@pytest.mark.validation
+@pytest.mark.parametrize("ratio", [0.9, 1.1])
+def test_euler_buckling_threshold_from_modes_about_the_loaded_equilibrium(ratio, tmp_path, capsys):
+    """Cantilever column under a dead compressive tip load: unstable (growth rate > 0) above P_cr = pi^2 EI / (4 L^2)."""
+    import json
+
+    from varint.cli import main
+
+    sec = solid_section(stretch_factor=1e5)
+    EI = sec["bending_stiffness"]
+    P = ratio * math.pi ** 2 * EI / 4.0
+    d = {"title": "column", "tube": {"length": 1.0, "nodes": 41, "radius": 0.01},
+         "rod": dict(sec, dimension=2, ends={"s0": "clamped", "sL": "free"}, load={"force": [-P, 0.0, 0.0]}),
+         "time": {"step": 1e-3, "end": 1.0}}
+    f = tmp_path / "column.toml"
+    f.write_text(to_toml(d))
+    assert main(["modes", str(f), "--about", "static", "--json", "-n", "2"]) == 0
+    lowest = json.loads(capsys.readouterr().out)["modes"][0]
+    if ratio < 1:
+        assert lowest["growth_rate"] == 0.0 and lowest["frequency"] > 0
+    else:
+        assert lowest["growth_rate"] > 0 and lowest["frequency"] == 0.0
+
+
+def test_modes_of_a_moving_rod_are_refused(tmp_path, capsys):
+    from varint.cli import main
+
+    d = {"title": "spin", "tube": {"length": 1.0, "nodes": 11, "radius": 0.01},
+         "rod": dict(SECTION, ends={"s0": "free", "sL": "free"}, initial={"angular_velocity": [0.0, 0.0, 3.0]}),
+         "time": {"step": 1e-3, "end": 1.0}}
+    f = tmp_path / "spin.toml"
+    f.write_text(to_toml(d))
+    assert main(["modes", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "gyroscopic" in err[0]

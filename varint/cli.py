@@ -105,7 +105,21 @@ def cmd_modes(args):
     from .scene import load_scene
 
     model = build_model(load_scene(args.scene))
-    res = rod_modes(model, count=args.count) if isinstance(model, RodModel) else modes(model, count=args.count)
+    if isinstance(model, RodModel):
+        if np.any(model.v0) or np.any(model.omega0):
+            raise VarintError(f"{args.scene}: modes about a moving state need the gyroscopic matrix, which is not "
+                              "available yet; remove [rod.initial] velocity / angular_velocity")
+        if args.about == "static":
+            from .rod import static_equilibrium
+
+            Lam, r, _ = static_equilibrium(model)
+            res = rod_modes(model, count=args.count, Lam=Lam, r=r)
+        else:
+            res = rod_modes(model, count=args.count)
+    else:
+        if args.about == "static":
+            raise VarintError(f"{args.scene}: --about static is available for [rod] scenes only")
+        res = modes(model, count=args.count)
     if args.json:
         print(json.dumps(_jsonable({"modes": res})))
     else:
@@ -177,6 +191,8 @@ def build_parser():
     m.add_argument("scene")
     m.add_argument("--json", action="store_true")
     m.add_argument("-n", "--count", type=int, default=20, help="number of lowest modes")
+    m.add_argument("--about", choices=("initial", "static"), default="initial",
+                   help="linearise about the scene's initial state (default) or its loaded static equilibrium (rods)")
     m.set_defaults(func=cmd_modes)
     return p
 
