@@ -9,7 +9,7 @@ from helpers import gas_scene, make
 
 P0 = 101325.0
 #: relative energy-error bound of the 10^5-step sloshing run (measured value in docs/validation.md)
-BOUND_10PCT = 3e-9
+BOUND_10PCT = 1.5e-9
 SLOSH = [{"field": "pressure", "shape": "cosine", "amplitude": 0.2 * P0, "wavelength": 2.0}]
 
 
