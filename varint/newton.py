@@ -156,8 +156,12 @@ def newton_damped(residual, jacobian, z0, scale, tol, max_iter, weight=None):
             if (np.isfinite(nt) and nt <= (1 - 1e-4 * alpha) * norm) or alpha < 1.0 / 256:
                 break
             alpha *= 0.5
+        stalled = not nt < (1 - 1e-4) * norm
         z, r, norm = zt, rt, nt
         err = float(np.max(np.abs(alpha * dz) / scale))
         if alpha == 1.0 and (err <= tol or err <= 8 * EPS * float(np.max(np.abs(z) / scale))):
+            return NewtonResult(True, z, it, err, np.nan, factor, n_res, n_jac, "damped Newton")
+        if stalled and err <= 100 * tol:
+            # a fresh Jacobian and no decrease of the residual: the round-off floor of the system
             return NewtonResult(True, z, it, err, np.nan, factor, n_res, n_jac, "damped Newton")
     return NewtonResult(False, z, max_iter, err, np.nan, factor, n_res, n_jac, "damped Newton did not converge")
