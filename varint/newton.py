@@ -18,7 +18,7 @@ __all__ = ["NewtonResult", "newton", "factorize"]
 
 EPS = np.finfo(float).eps
 #: contraction rate above which the Jacobian is refreshed (a chord iteration that slow costs more than an LU)
-RATE_REFRESH = 0.05
+RATE_REFRESH = 0.2
 
 
 @dataclass
