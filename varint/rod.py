@@ -198,7 +198,7 @@ class RodModel:
         node[..., -1] = h * np.sum(self.force * rm[..., -1, :], axis=-1)
         return elem, node
 
-    def pieces_fast(self, h, Lam_n, r_n, xi, r_1, sig, dr, level):
+    def pieces_fast(self, h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor=1.0):
         """:meth:`lagrangian_pieces` through the numba kernel ``_k_pieces`` (tested equal)."""
         sec = self.section
         c = np.complex128
@@ -208,7 +208,8 @@ class RodModel:
         _k_pieces(float(h), self.ds, np.ascontiguousarray(Lam_n, dtype=c), np.ascontiguousarray(r_n, dtype=c),
                   np.ascontiguousarray(xi, dtype=c), np.ascontiguousarray(r_1, dtype=c), np.ascontiguousarray(sig, dtype=c),
                   np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, sec.inertia.astype(c), sec.J.astype(c),
-                  sec.K.astype(c), self.g.astype(c), self.force.astype(c), self.paper_measure, elem, node)
+                  sec.K.astype(c), (load_factor * self.g).astype(c), (load_factor * self.force).astype(c),
+                  self.paper_measure, elem, node)
         return elem, node
 
     def level_energy(self, Lam, r, p, Pi):
@@ -228,7 +229,7 @@ class RodModel:
         load = -float(np.dot(self.force, r[-1]))
         return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
 
-    def derivative(self, h, Lam_n, r_n, xi, r_1, level):
+    def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
         N = self.N
         dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
@@ -246,7 +247,7 @@ class RodModel:
                     sig[b, nodes, d - 3] = 1j * EPS_CS
                 plan.append((c, d))
                 b += 1
-        elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level)
+        elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
         de = elem.imag / EPS_CS
         dn = node.imag / EPS_CS
         out = np.zeros((N + 1, 6))
@@ -468,15 +469,10 @@ class RodSimulation:
 
 def _potential_gradient(model, Lam, r, load_factor=1.0):
     """d(-U)/d(dr, sigma) of the potential at a configuration (N+1, 6), including the tip torque."""
-    saved = model.force.copy(), model.g.copy()
-    model.force = saved[0] * load_factor
-    model.g = saved[1] * load_factor
-    try:
-        xi = np.zeros_like(r)
-        # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and both levels
-        g = model.derivative(1.0, Lam, r, xi, r, level=0) + model.derivative(1.0, Lam, r, xi, r, level=1)
-    finally:
-        model.force, model.g = saved
+    xi = np.zeros_like(r)
+    # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and sum both levels
+    g = (model.derivative(1.0, Lam, r, xi, r, level=0, load_factor=load_factor)
+         + model.derivative(1.0, Lam, r, xi, r, level=1, load_factor=load_factor))
     if np.any(model.torque):
         g[-1, 3:] += load_factor * (Lam[-1].T @ model.torque)
     return g
