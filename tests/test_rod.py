@@ -384,3 +384,17 @@ def test_modes_of_a_moving_rod_are_refused(tmp_path, capsys):
     assert main(["modes", str(f)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "gyroscopic" in err[0]
+
+
+def test_rod_resume_equals_uninterrupted(tmp_path):
+    from varint import run_scene
+    from varint.io import read_run
+
+    scene = rod_scene(nodes=11, h=1e-2, end=0.4, section=STIFF, initial={"angular_velocity": [13.0, 40.0, -27.0]})
+    run_scene(scene, str(tmp_path / "full.h5"), progress=False)
+    run_scene(scene, str(tmp_path / "part.h5"), progress=False, max_steps=17)
+    run_scene(scene, str(tmp_path / "part.h5"), resume=True, progress=False)
+    a, b = read_run(tmp_path / "full.h5"), read_run(tmp_path / "part.h5")
+    assert np.array_equal(a["time"], b["time"])
+    for k in ("rod/r", "rod/Lambda"):
+        assert np.allclose(a["fields"][k], b["fields"][k], rtol=0, atol=1e-12)
