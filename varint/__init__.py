@@ -4,7 +4,7 @@ Public API::
 
     scene = varint.load_scene("examples/rubber_tube_pulse.toml")
     model = varint.build_model(scene)
-    sim = varint.Simulation(model)
+    sim = varint.make_simulation(model)   # the tube's stepper, or the rod's Lie-group one
     sim.step(); sim.monitors(); sim.fields()
     varint.run_scene(scene, "out.h5")
 
@@ -15,9 +15,9 @@ __version__ = "0.1.0"
 
 from .errors import OutputError, SceneError, SolverError, VarintError  # noqa: E402
 from .model import Model, build_model  # noqa: E402
-from .runner import run_scene  # noqa: E402
+from .runner import make_simulation, run_scene  # noqa: E402
 from .scene import Scene, load_scene, parse_scene  # noqa: E402
 from .stepper import Simulation, State  # noqa: E402
 
 __all__ = ["__version__", "load_scene", "parse_scene", "Scene", "build_model", "Model", "Simulation", "State",
-           "run_scene", "VarintError", "SceneError", "SolverError", "OutputError"]
+           "run_scene", "make_simulation", "VarintError", "SceneError", "SolverError", "OutputError"]
