@@ -27,7 +27,7 @@ def main(steps):
     m1 = sim.monitors()
     P, J, E = m1["linear_momentum"], m1["angular_momentum"], m1["energy"]
     worst = {"linear": 0.0, "angular": 0.0, "orthogonality": 0.0}
-    marks = {10 ** k for k in range(2, 8)}
+    marks = {10 ** k for k in range(2, 6)} | set(range(100_000, steps + 1, 100_000))
     band = []
     t0 = time.perf_counter()
     for n in range(2, steps + 1):
@@ -41,7 +41,8 @@ def main(steps):
             b = np.array(band)
             print(f"steps {n:>8d}  wall {time.perf_counter() - t0:8.1f} s  energy dev: max {np.max(np.abs(b)):.3e}, "
                   f"mean of the last tenth {np.mean(b[-max(1, len(b) // 10):]):+.3e}  "
-                  f"momenta {worst['linear']:.2e} / {worst['angular']:.2e}  orthogonality {worst['orthogonality']:.2e}", flush=True)
+                  f"momenta {worst['linear']:.2e} / {worst['angular']:.2e}  orthogonality {worst['orthogonality']:.2e}  "
+                  f"Newton fallbacks {getattr(sim.stats, 'fallbacks', 0)}", flush=True)
 
 
 if __name__ == "__main__":
