@@ -13,15 +13,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from test_rod import STIFF, rod_scene  # noqa: E402
+from test_rod import tumbling_model  # noqa: E402
 
-from varint import build_model  # noqa: E402
 from varint.rod import RodSimulation  # noqa: E402
 
 
 def main(steps):
-    model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF,
-                                  initial={"velocity": [0.1, 0.2, -0.3], "angular_velocity": [13.0, 40.0, -27.0]}))
+    model = tumbling_model()
     sim = RodSimulation(model)
     sim.step()
     m1 = sim.monitors()

@@ -78,6 +78,12 @@ def test_step_residual_is_gradient_of_action_with_lie_variations(measure, extras
 
 
 STIFF = dict(SECTION, axial_stiffness=1e4, shear_stiffness=8e3)
+SPIN = {"velocity": [0.1, 0.2, -0.3], "angular_velocity": [13.0, 40.0, -27.0]}
+
+
+def tumbling_model(h=1e-2):
+    """The free rod spinning about an oblique axis (also used by scripts/rod_long_run.py)."""
+    return build_model(rod_scene(nodes=11, h=h, section=STIFF, initial=SPIN))
 
 
 def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
@@ -86,8 +92,7 @@ def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
     Momenta to round-off, energy bounded, frames orthogonal.  (A free rod with uniform initial
     curvature is not admissible data: its free ends carry an unbalanced moment.)
     """
-    model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF,
-                                  initial={"velocity": [0.1, 0.2, -0.3], "angular_velocity": [13.0, 40.0, -27.0]}))
+    model = tumbling_model()
     sim = RodSimulation(model)
     sim.step()
     m1 = sim.monitors()

@@ -84,5 +84,5 @@ class InitialFields:
         return u
 
 
-def initial_fields(fluid, L, eos):
+def initial_fields(fluid, eos):
     return InitialFields(fluid, eos)

@@ -174,7 +174,7 @@ class Model:
         self.m = np.zeros(self.M)
         self.S = np.zeros(self.M)
         if self.has_fluid:
-            f = initial_fields(sc.fluid, self.L, self.eos)
+            f = initial_fields(sc.fluid, self.eos)
             s = np.linspace(0.0, self.L, self.M + 1)
             V = parcel_volumes(s, R_init, self.ds, self.periodic)
             centres = 0.5 * (s[:-1] + s[1:])

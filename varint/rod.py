@@ -229,24 +229,30 @@ class RodModel:
         load = -float(np.dot(self.force, r[-1]))
         return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
 
+    def _cs_plan(self):
+        """Complex-step perturbations (built once): all even, then all odd nodes, one direction each."""
+        if getattr(self, "_plan", None) is None:
+            N = self.N
+            dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
+            nb = 2 * len(dirs)
+            sig = np.zeros((nb, N + 1, 3), dtype=complex)
+            dr = np.zeros((nb, N + 1, 3), dtype=complex)
+            plan = []
+            for c in (0, 1):
+                for d in dirs:
+                    b = len(plan)
+                    if d < 3:
+                        dr[b, c::2, d] = 1j * EPS_CS
+                    else:
+                        sig[b, c::2, d - 3] = 1j * EPS_CS
+                    plan.append((c, d))
+            self._plan = (sig, dr, plan)
+        return self._plan
+
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
         N = self.N
-        dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
-        nb = 2 * len(dirs)
-        sig = np.zeros((nb, N + 1, 3), dtype=complex)
-        dr = np.zeros((nb, N + 1, 3), dtype=complex)
-        b = 0
-        plan = []
-        for c in (0, 1):
-            nodes = np.arange(c, N + 1, 2)
-            for d in dirs:
-                if d < 3:
-                    dr[b, nodes, d] = 1j * EPS_CS
-                else:
-                    sig[b, nodes, d - 3] = 1j * EPS_CS
-                plan.append((c, d))
-                b += 1
+        sig, dr, plan = self._cs_plan()
         elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
         de = elem.imag / EPS_CS
         dn = node.imag / EPS_CS

@@ -125,12 +125,6 @@ class Trapezoidal(Scheme):
     def momentum_plus(self, q0, z):
         return self.Mdiag * (z - q0) / self.h - 0.5 * self.h * self._force(z)
 
-    def step_energies(self, q0, z):
-        e = np.empty(0)
-        a = self.model.energies(self._cfg(q0, e))
-        b = self.model.energies(self._cfg(z, e))
-        return {k: 0.5 * (a[k] + b[k]) for k in a}
-
     def explicit(self):
         # The residual is affine in q_{n+1} with the constant diagonal Jacobian -M/h:
         # one solve is exact (Stormer-Verlet).  No Newton iteration is needed.
