@@ -54,7 +54,7 @@ def factorize(J):
 
 
 def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refresh=RATE_REFRESH,
-           chord_iterations=5):
+           chord_iterations=5, polish=0):
     """Solve residual(z) = 0 from z0.
 
     Parameters
@@ -73,6 +73,11 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
         banded differences cost ~40 residuals).
     chord_iterations : int
         Iterations allowed on an inherited Jacobian before it is refreshed regardless of rate.
+    polish : int
+        Extra iterations allowed *after* ``tol`` is met, taken while each update is still clearly
+        smaller than the previous one (i.e. until the round-off floor).  The error left in a step's momentum
+        balance is the final residual, and it accumulates over a long run; polishing makes it
+        round-off instead of tolerance-sized, at the cost of a few residuals (no Jacobian).
     """
     z = np.array(z0, dtype=np.float64, copy=True)
     n_res = n_jac = 0
@@ -88,7 +93,8 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
     it = 0
     err = np.inf
     n_growing = 0  # consecutive growing updates
-    while it < max_iter:
+    polished = 0
+    while it < max_iter + polished:
         r = residual(z)
         n_res += 1
         if not np.all(np.isfinite(r)):
@@ -99,7 +105,15 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
         err = float(np.max(np.abs(dz) / scale)) if len(z) else 0.0
         floor = 8 * EPS * (float(np.max(np.abs(z) / scale)) if len(z) else 1.0)
         if err <= tol or err <= floor:
+            contracting = polished == 0 or err < 0.7 * err_prev
+            if polished < polish and err > floor and contracting:
+                polished += 1
+                err_prev = err
+                continue
             return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac)
+        if polished:  # a polishing update that grew past tol: round-off noise, keep the converged point
+            z -= dz
+            return NewtonResult(True, z, it, err_prev, rate, factor, n_res, n_jac, "polished to round-off")
         if err_prev is not None:
             rate = err / err_prev
             slow_inherited = jac_iter is None and it >= chord_iterations  # an old Jacobian needing many iterations
