@@ -378,19 +378,6 @@ def test_euler_buckling_threshold_from_modes_about_the_loaded_equilibrium(ratio,
         assert lowest["growth_rate"] > 0 and lowest["frequency"] == 0.0
 
 
-def test_modes_of_a_moving_rod_are_refused(tmp_path, capsys):
-    from varint.cli import main
-
-    d = {"title": "spin", "tube": {"length": 1.0, "nodes": 11, "radius": 0.01},
-         "rod": dict(SECTION, ends={"s0": "free", "sL": "free"}, initial={"angular_velocity": [0.0, 0.0, 3.0]}),
-         "time": {"step": 1e-3, "end": 1.0}}
-    f = tmp_path / "spin.toml"
-    f.write_text(to_toml(d))
-    assert main(["modes", str(f)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "gyroscopic" in err[0]
-
-
 def test_rod_resume_equals_uninterrupted(tmp_path):
     from varint import run_scene
     from varint.io import read_run

@@ -17,8 +17,8 @@ import scipy.sparse as sp
 
 from .errors import VarintError
 
-__all__ = ["linearization", "modes", "modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
-           "timoshenko_cantilever", "elastica_cantilever_tip"]
+__all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
+           "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl"]
 
 
 def linearization(model, z=None):
@@ -64,6 +64,40 @@ def modes_of(K, M, count, vectors=False):
         else:
             res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
     return (res, X[:, :count]) if vectors else res
+
+
+def gyroscopic_modes_of(K, G, M, count, vectors=False):
+    """Modes of M q'' + G q' + K q = 0 (G skew: gyroscopic; diag(M)) -> modes list (and shapes).
+
+    The first-order form x' = A x, x = (q, q'), has a Hamiltonian spectrum: eigenvalues come as
+    +-lam (and conjugates).  Each degree of freedom is reported once: an oscillation +-i w as
+    frequency w; a real pair +-s as frequency 0, growth rate s; a flutter quadruple +-a +- i w as two
+    entries (w, |a|).  Zero eigenvalues (rigid motions, Jordan blocks) are those below 1e-7 of the
+    largest |lam|: their round-off splitting is ~sqrt(eps); for the same reason real and imaginary
+    parts below that are reported as 0 (the threshold of :func:`modes_of`, 1e-14 on w^2).  Sorted by frequency, then growth
+    rate descending; with ``vectors`` the complex displacement parts of the mode shapes too.
+    """
+    n = len(M)
+    A = np.zeros((2 * n, 2 * n))
+    A[:n, n:] = np.eye(n)
+    A[n:, :n] = -K / M[:, None]
+    A[n:, n:] = -G / M[:, None]
+    lam, X = sla.eig(A)
+    big = max(np.max(np.abs(lam)), 1e-300)
+    zero = np.abs(lam) <= 1e-7 * big
+    tiny = 1e-7 * big  # parts below this are round-off (double eigenvalues split by ~sqrt(eps))
+    keep = ~zero & ((lam.imag > tiny) | ((np.abs(lam.imag) <= tiny) & (lam.real > 0)))
+    picks = list(np.flatnonzero(keep)) + list(np.flatnonzero(zero)[: int(zero.sum()) // 2])
+    res = []
+    for i in picks:
+        real_pair = abs(lam[i].imag) <= tiny and not zero[i]
+        res.append({"frequency": 0.0 if zero[i] or real_pair else float(lam[i].imag),
+                    "growth_rate": 0.0 if zero[i] or abs(lam[i].real) <= tiny else float(abs(lam[i].real))})
+    order = sorted(range(len(res)), key=lambda k: (res[k]["frequency"], -res[k]["growth_rate"]))
+    res = [res[k] for k in order][:count]
+    if vectors:
+        return res, X[:n, [picks[k] for k in order][:count]]
+    return res
 
 
 def dispersion_branches(k, c0, rho0, R0, a, beta1, beta2):
@@ -190,3 +224,29 @@ def elastica_cantilever_tip(load, EI, L):
     th, _, x, y = sol.sol(L)
     # theta measured from +x towards -y for a downward load
     return x, -y, -th if th > 0 else th
+
+
+def spinning_shaft_whirl(k, rhoA, rhoI, rhoJp, EI, kGA, spin):
+    """Whirl frequencies (forward, backward) in rad/s, seen from the ground, of a simply supported
+    Timoshenko shaft spinning at ``spin`` about its axis, in the mode sin(k x) (lowest, bending branch).
+
+    With u = v + i w the complex lateral displacement and psi the complex section rotation, the
+    linearised equations (docs/theory.md §9, "Modes of a spinning rod") for u = U sin(kx) e^{i w t},
+    psi = Psi cos(kx) e^{i w t} are
+
+        (kGA k^2 - rhoA w^2) U - kGA k Psi = 0,
+        -kGA k U + (EI k^2 + kGA - rhoI w^2 + s rhoJp spin w) Psi = 0,
+
+    s = +1 for the forward whirl (w > 0 in the sense of the spin: gyroscopic stiffening), s = -1 the
+    backward one.  Rayleigh limit (kGA -> inf): (rhoA + rhoI k^2) w^2 -+ rhoJp spin k^2 w - EI k^4 = 0.
+    The quartic's positive roots are found by numpy; the lowest is the bending branch.
+    """
+    out = []
+    for s in (1.0, -1.0):
+        a = np.array([-rhoA, 0.0, kGA * k * k])
+        c = np.array([-rhoI, s * rhoJp * spin, EI * k * k + kGA])
+        det = np.polysub(np.polymul(a, c), [(kGA * k) ** 2])
+        roots = np.roots(det)
+        pos = sorted(float(x.real) for x in roots if abs(x.imag) <= 1e-9 * abs(x) and x.real > 0)
+        out.append(pos[0])
+    return tuple(out)

@@ -105,24 +105,31 @@ def cmd_modes(args):
     from .scene import load_scene
 
     model = build_model(load_scene(args.scene))
+    frame = None
     if isinstance(model, RodModel):
-        if np.any(model.v0) or np.any(model.omega0):
-            raise VarintError(f"{args.scene}: modes about a moving state need the gyroscopic matrix, which is not "
-                              "available yet; remove [rod.initial] velocity / angular_velocity")
+        spin = model.Lam0[0] @ model.omega0[0]  # the initial angular velocity (spatial)
         if args.about == "static":
             from .rod import static_equilibrium
 
+            if np.any(spin):
+                raise VarintError(f"{args.scene}: --about static is not available for a spinning rod "
+                                  "(rod.initial.angular_velocity): the static solver has no centrifugal loads")
             Lam, r, _ = static_equilibrium(model)
             res = rod_modes(model, count=args.count, Lam=Lam, r=r)
         else:
             res = rod_modes(model, count=args.count)
+        if np.any(spin):
+            frame = {"angular_velocity": [float(x) for x in spin],
+                     "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
     else:
         if args.about == "static":
             raise VarintError(f"{args.scene}: --about static is available for [rod] scenes only")
         res = modes(model, count=args.count)
     if args.json:
-        print(json.dumps(_jsonable({"modes": res})))
+        print(json.dumps(_jsonable({"modes": res} if frame is None else {"modes": res, "frame": frame})))
     else:
+        if frame is not None:
+            print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
         for i, m in enumerate(res):
             print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s")
     return 0

@@ -554,21 +554,102 @@ def _retract(Lam, r, z, mask):
     return Lam @ cay(u[:, 3:]), r + u[:, :3]
 
 
-def rod_modes(model, count=20, vectors=False, Lam=None, r=None):
+def rotating_frame_kinetics(model, Omega, Lam, r):
+    """Kinetic energy of the lumped rod seen from a frame spinning at Omega about the centre of mass.
+
+    With r = r_c + R(t) rho, Lambda = R(t) Lambda~ (R = exp(t Omega^)), the semi-discrete kinetic
+    energy T = sum_j 1/2 m_j |Omega x rho_j + rho_j'|^2 + 1/2 w_j^T I_j w_j, w_j = Lambda~_j^T Omega
+    + (body velocity of Lambda~_j), is autonomous.  Expanded to second order in the perturbation
+    rho = rho_0 + dr, Lambda~ = Lambda~_0 cay(sigma) (docs/theory.md §9, "Modes of a spinning rod"):
+
+        T = b.q + q'^T C q + 1/2 q'^T M q' + 1/2 q^T H q + (q-independent),   q = (dr, sigma) per node.
+
+    Returns per-node blocks ``b`` (N+1, 6), ``C`` and ``H`` (N+1, 6, 6); M is :func:`lumped_mass`.
+    """
+    m = model.section.rhoA * model.w
+    inertia = model.section.inertia[None, :] * model.w[:, None]
+    Omega = np.asarray(Omega, dtype=float)
+    rc = (m[:, None] * r).sum(0) / m.sum()
+    W = hat(Omega)
+    n = model.N + 1
+    b = np.zeros((n, 6))
+    C = np.zeros((n, 6, 6))
+    H = np.zeros((n, 6, 6))
+    # translation: 1/2 m |Omega x (rho_0 + dr) + dr'|^2
+    C[:, :3, :3] = m[:, None, None] * W
+    H[:, :3, :3] = m[:, None, None] * (W.T @ W)
+    b[:, :3] = m[:, None] * ((r - rc) @ (W.T @ W).T)  # centrifugal force
+    # rotation: w = cay(sigma)^T Ob + dcay_{-sigma} sigma' = Ob + Ob x sigma + 1/2 sigma x (sigma x Ob) + sigma' - 1/2 sigma x sigma'
+    Ob = np.einsum("nji,j->ni", Lam, Omega)  # Lambda^T Omega, the frame's spin seen in each section
+    IO = inertia * Ob
+    Wb = hat(Ob)
+    C[:, 3:, 3:] = inertia[:, :, None] * Wb - 0.5 * hat(IO)
+    H[:, 3:, 3:] = (np.swapaxes(Wb, 1, 2) @ (inertia[:, :, None] * Wb)
+                    + 0.5 * (IO[:, :, None] * Ob[:, None, :] + Ob[:, :, None] * IO[:, None, :])
+                    - np.sum(Ob * IO, axis=1)[:, None, None] * np.eye(3))
+    b[:, 3:] = np.cross(IO, Ob)
+    return b, C, H
+
+
+def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
     """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
 
     Stiffness: the Hessian of the discrete potential in (dr, sigma) (banded differences of the
-    exact force); mass: the lumped diagonal of the kinetic energy.  Returns
-    ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
+    exact force); mass: the lumped diagonal of the kinetic energy.  With ``Omega`` (default: the
+    scene's initial angular velocity) the linearisation is about a steady rotation, in the frame
+    spinning with it: the gyroscopic matrix G = C - C^T and the centrifugal stiffness -H of
+    :func:`rotating_frame_kinetics` enter, and the state must be a relative equilibrium there.
+    Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
-    from .analysis import modes_of
+    from .analysis import gyroscopic_modes_of, modes_of
 
     mask = model.mask
     Lam = model.Lam0 if Lam is None else Lam
     r = model.r0 if r is None else r
+    if Omega is None:
+        Omega = np.einsum("ij,j->i", Lam[0], model.omega0[0]) if np.any(model.omega0) else np.zeros(3)
     K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
     K = 0.5 * (K + K.T)
-    return modes_of(K, lumped_mass(model)[mask], count, vectors)
+    M = lumped_mass(model)[mask]
+    if not mask[[0, -1], :3].all() and np.any(model.scene.rod.initial.velocity or 0.0):
+        raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
+                          "rod.initial.velocity must be zero")
+    if not np.any(Omega):
+        return modes_of(K, M, count, vectors)
+    check_rotating_base(model, Omega)
+    b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
+    f = _potential_gradient(model, Lam, r) + b
+    # force scale: the centrifugal loads, or the elastic force of a unit strain (diag K x unit displacement)
+    unit = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, model.ds, 1.0)
+    size = max(np.max(np.abs(b)), np.max(np.abs(np.diag(K)) * unit))
+    unbalanced = np.max(np.abs(f[mask]))
+    if unbalanced > 1e-9 * size:
+        raise SolverError(f"modes: the state is not a steady rotation at angular_velocity {list(map(float, Omega))}: "
+                          f"unbalanced generalised force {unbalanced:.3g} (centrifugal {np.max(np.abs(b)):.3g}); "
+                          "spin the rod about a principal axis of its unstressed shape")
+    idx = np.flatnonzero(mask.ravel())
+    Cf = sp.block_diag(list(C)).toarray()[np.ix_(idx, idx)]
+    Hf = sp.block_diag(list(H)).toarray()[np.ix_(idx, idx)]
+    return gyroscopic_modes_of(K - Hf, Cf - Cf.T, M, count, vectors)
+
+
+def check_rotating_base(model, Omega):
+    """A steady rotation must be one the time-domain rod can perform: one-line error otherwise."""
+    if model.paper_measure:
+        raise SolverError("modes: about a spinning state only with rod.measure = \"reference\" (the paper's measure "
+                          "makes the mass depend on the stretch)")
+    if np.any(model.force) or np.any(model.torque) or np.any(np.cross(model.g, Omega)):
+        raise SolverError("modes: a spinning rod with rod.load or gravity across the spin axis is not in a steady "
+                          "rotation (the loads turn relative to it)")
+    m = model.section.rhoA * model.w
+    rc = (m[:, None] * model.r0).sum(0) / m.sum()
+    ends = model.scene.rod.ends
+    for node, key in ((0, "s0"), (model.N, "sL")):
+        kind = getattr(ends, key)
+        off_axis = np.linalg.norm(np.cross(Omega, model.r0[node] - rc)) > 1e-12 * model.L * np.linalg.norm(Omega)
+        if kind == "clamped" or (kind == "pinned" and off_axis):
+            raise SolverError(f"modes: rod.ends.{key} = \"{kind}\" cannot turn with the spin at angular_velocity "
+                              f"{[float(x) for x in Omega]}; only pinned ends on the spin axis can")
 
 
 def lumped_mass(model):
