@@ -29,7 +29,7 @@ def main(steps, at_rest=False):
     mass = model.section.rhoA * model.w
 
     def about_centre_of_mass(mo):
-        r = sim.state.q[: 3 * (model.N + 1)].reshape(-1, 3)
+        r = sim.fields()["rod/r"]
         rc = (mass[:, None] * r).sum(0) / mass.sum()
         return mo["angular_momentum"] - np.cross(rc, mo["linear_momentum"])
 

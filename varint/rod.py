@@ -227,8 +227,12 @@ class RodModel:
                   self.paper_measure, elem, node)
         return elem, node
 
-    def level_energy(self, Lam, r, p, Pi):
-        """Energy H(q_n, pi_n) = kinetic from the discrete momenta + potential at the level (the monitor)."""
+    def level_energy(self, Lam, r, p, Pi, origin=None):
+        """Energy H(q_n, pi_n) = kinetic from the discrete momenta + potential at the level (the monitor).
+
+        ``r`` may be relative to ``origin`` (the floating origin of a free rod): the potentials of
+        gravity and the tip force, linear in r, take the origin's part separately.
+        """
         sec, ds = self.section, self.ds
         Om, Ga = self.strains(Lam, r)
         dG = Ga - CHI
@@ -242,6 +246,9 @@ class RodModel:
         stretch = float(np.sum(ds * mu * 0.5 * np.sum(sec.K * dG * dG, axis=-1)))
         grav = -float(np.sum(ds * mu * sec.rhoA * np.sum(self.g * (r[:-1] + r[1:]), axis=-1) * 0.5))
         load = -float(np.dot(self.force, r[-1]))
+        if origin is not None and np.any(origin):
+            grav -= float(np.sum(ds * mu) * sec.rhoA * np.dot(self.g, origin))
+            load -= float(np.dot(self.force, origin))
         return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
 
     def _cs_plan(self):
@@ -342,13 +349,19 @@ def banded_jacobian(func, z, mask, ds, rel_step=1e-6):
     return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
-def _pack(Lam, r):
-    return np.concatenate([r.ravel(), Lam.ravel()])
+def _pack(Lam, r, origin=None):
+    """State vector q = (positions relative to the origin, frames, origin)."""
+    return np.concatenate([r.ravel(), Lam.ravel(), np.zeros(3) if origin is None else origin])
 
 
 def _unpack(q, N):
+    """(Lambda, r relative to the origin, origin) from a state vector."""
     n3 = 3 * (N + 1)
-    return q[n3:].reshape(N + 1, 3, 3), q[:n3].reshape(N + 1, 3)
+    return q[n3:12 * (N + 1)].reshape(N + 1, 3, 3), q[:n3].reshape(N + 1, 3), q[12 * (N + 1):]
+
+
+#: grid of the floating origin's moves (m): multiples of 2^-20 add exactly to an origin on the same grid
+ORIGIN_GRID = 2.0 ** -20
 
 
 class RodSimulation:
@@ -361,6 +374,14 @@ class RodSimulation:
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
         N = model.N
+        # A free rod can travel far from the origin; positions are then kept relative to a floating
+        # origin (moved with node 0 each step, exactly, on a binary grid) so that strains and forces
+        # are computed from O(L) numbers: with absolute coordinates their round-off grows like eps |r|
+        # and a rod drifting 3.7 km lost its angular momentum to 1e-8 (docs/validation.md).
+        self.floating_origin = bool(model.mask[[0, -1], :3].all())
+        if state is not None and len(state.q) == 12 * (N + 1):  # a checkpoint written before the origin existed
+            state = State(state.n, state.t, np.concatenate([state.q, np.zeros(3)]), state.p, state.lam, state.v,
+                          state.q_prev)
         if state is None:
             q = _pack(model.Lam0, model.r0)
             p = np.concatenate([model.p0.ravel(), model.Pi0.ravel()])
@@ -412,7 +433,7 @@ class RodSimulation:
     def step(self):
         m, st = self.model, self.state
         N = m.N
-        Lam_n, r_n = _unpack(st.q, N)
+        Lam_n, r_n, origin = _unpack(st.q, N)
         pi_n = st.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
         guess = st.v.reshape(2, N + 1, 3)
         # the last step's body-frame displacement and xi: exact for a rigid rotation
@@ -446,11 +467,14 @@ class RodSimulation:
         if res.message != "damped Newton":
             self._factor = res.factor
         r_1, xi = self._split(res.z, Lam_n, r_n)
-        Lam_1 = Lam_n @ cay(xi)
+        Lam_1 = reorthonormalize(Lam_n @ cay(xi))
         D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.torque_force(self.h, Lam_1)
         p1 = np.concatenate([D2[:, :3].ravel(), D2[:, 3:].ravel()])
         v = np.concatenate([np.einsum("nji,nj->ni", Lam_n, r_1 - r_n).ravel(), xi.ravel()])
-        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1), p1, np.empty(0), v, st.q.copy())
+        if self.floating_origin:
+            shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
+            r_1, origin = r_1 - shift, origin + shift
+        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1, origin), p1, np.empty(0), v, st.q.copy())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = res.iterations, res.n_residual, res.n_jacobian
         s.total_iterations += res.iterations
@@ -462,25 +486,32 @@ class RodSimulation:
     def monitors(self):
         m, st = self.model, self.state
         N = m.N
-        Lam, r = _unpack(st.q, N)
+        Lam, r, origin = _unpack(st.q, N)
         # supported components carry reaction impulses in D2 L_d, not momentum: leave them out
         p = st.p[: 3 * (N + 1)].reshape(N + 1, 3) * m.mask[:, :3]
         Pi = st.p[3 * (N + 1):].reshape(N + 1, 3) * m.mask[:, 3:]
-        pot = m.level_energy(Lam, r, p, Pi)
+        pot = m.level_energy(Lam, r, p, Pi, origin)
         out = {"kinetic_energy": pot.pop("kinetic")}
         for k, v in pot.items():
             out[f"energy_{k}"] = v
         out["energy"] = out["kinetic_energy"] + sum(pot.values())
         out["mass"] = float(np.sum(m.section.rhoA * m.w))
         out["linear_momentum"] = p.sum(0)
-        out["angular_momentum"] = np.cross(r, p).sum(0) + np.einsum("nij,nj->i", Lam, Pi)
+        # about the (fixed) origin: origin x P + sum (r - origin) x p + Lambda Pi, each part from O(L) numbers
+        spin = np.einsum("nij,nj->i", Lam, Pi)
+        out["angular_momentum"] = np.cross(origin, p.sum(0)) + np.cross(r, p).sum(0) + spin
+        # about the centre of mass: the well-conditioned one for a rod far from the origin (there the
+        # difference angular_momentum - r_c x P cancels large numbers)
+        mass = m.section.rhoA * m.w
+        rc = (mass[:, None] * r).sum(0) / mass.sum()
+        out["angular_momentum_cm"] = np.cross(r - rc, p).sum(0) + spin
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
         out["newton_iterations"] = self.stats.iterations
         return out
 
     def fields(self):
-        Lam, r = _unpack(self.state.q, self.model.N)
-        return {"rod/r": r.copy(), "rod/Lambda": Lam.copy()}
+        Lam, r, origin = _unpack(self.state.q, self.model.N)
+        return {"rod/r": r + origin, "rod/Lambda": Lam.copy()}
 
 
 # ---------------------------------------------------------------------------
