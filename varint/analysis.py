@@ -250,3 +250,40 @@ def spinning_shaft_whirl(k, rhoA, rhoI, rhoJp, EI, kGA, spin):
         pos = sorted(float(x.real) for x in roots if abs(x.imag) <= 1e-9 * abs(x) and x.real > 0)
         out.append(pos[0])
     return tuple(out)
+
+
+def spinning_free_rod_flap(EI, rhoA, L, spin, omega_max, samples=400):
+    """Out-of-plane ("flap") frequencies, in the spinning frame, of a free Euler-Bernoulli rod spun end
+    over end at ``spin`` about a transverse axis through its centre: all roots in (0, omega_max].
+
+    The centrifugal tension N(x) = rhoA spin^2 (l^2 - x^2) / 2 (x from the centre, l = L/2) stiffens
+    the bending; displacements normal to the plane of rotation feel neither Coriolis nor centrifugal
+    force, so  rhoA w_tt - (N w_x)_x + EI w_xxxx = 0.  With m = EI w'' and Q = m' - N w' this is
+    w' = theta, theta' = m/EI, m' = Q + N theta, Q' = rhoA omega^2 w, free at x = l (m = Q = 0);
+    symmetric modes have theta = Q = 0 at the centre, antisymmetric ones w = m = 0.  Shooting
+    (scipy solve_ivp) and brentq on the 2x2 end determinant.  The rigid tilt appears at omega = spin.
+    (In the plane of rotation the same tension acts, plus -rhoA spin^2 w: omega_lag^2 = omega_flap^2 - spin^2
+    when the Coriolis coupling with the stiff axial motion is neglected.)
+    """
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    ell = 0.5 * L
+
+    def ends(omega, starts):
+        def rhs(x, y):
+            N = 0.5 * rhoA * spin * spin * (ell * ell - x * x)
+            w, th, m, Q = y
+            return [th, m / EI, Q + N * th, rhoA * omega * omega * w]
+
+        cols = [solve_ivp(rhs, (0.0, ell), y0, rtol=1e-11, atol=1e-14).y[:, -1] for y0 in starts]
+        return cols[0][2] * cols[1][3] - cols[1][2] * cols[0][3]
+
+    roots = []
+    for starts in (([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]), ([0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])):
+        grid = np.linspace(omega_max / samples, omega_max, samples)
+        vals = [ends(w, starts) for w in grid]
+        for a, b, fa, fb in zip(grid, grid[1:], vals, vals[1:]):
+            if fa == 0.0 or fa * fb < 0:
+                roots.append(brentq(lambda w: ends(w, starts), a, b, xtol=1e-13, rtol=1e-13))
+    return sorted(roots)

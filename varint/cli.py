@@ -107,14 +107,12 @@ def cmd_modes(args):
     model = build_model(load_scene(args.scene))
     frame = None
     if isinstance(model, RodModel):
-        spin = model.Lam0[0] @ model.omega0[0]  # the initial angular velocity (spatial)
+        spin = model.spin  # rod.initial.angular_velocity
         if args.about == "static":
             from .rod import static_equilibrium
 
-            if np.any(spin):
-                raise VarintError(f"{args.scene}: --about static is not available for a spinning rod "
-                                  "(rod.initial.angular_velocity): the static solver has no centrifugal loads")
-            Lam, r, _ = static_equilibrium(model)
+            # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
+            Lam, r, _ = static_equilibrium(model, spin=spin if np.any(spin) else None)
             res = rod_modes(model, count=args.count, Lam=Lam, r=r)
         else:
             res = rod_modes(model, count=args.count)
@@ -150,20 +148,29 @@ def cmd_static(args):
     model = build_model(scene)
     if not isinstance(model, RodModel):
         raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes only in this version")
-    Lam, r, info = static_equilibrium(model)
+    spinning = bool(np.any(model.spin))
+    Lam, r, info = static_equilibrium(model, spin=model.spin if spinning else None)
     sim = RodSimulation(model)
     n6 = 6 * (model.N + 1)
-    sim.state = State(0, 0.0, _pack(Lam, r), np.zeros(n6), np.empty(0), np.zeros(n6))
+    if spinning:  # the steady rotation: its shape, with the momenta of the rigid rotation
+        model.set_configuration(Lam, r)
+        p = np.concatenate([model.p0.ravel(), model.Pi0.ravel()])
+    else:
+        p = np.zeros(n6)
+    sim.state = State(0, 0.0, _pack(Lam, r), p, np.empty(0), np.zeros(n6))
     out = args.output or default_output(scene, args.scene).replace(".h5", "_static.h5")
     w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
     try:
         w.append(0.0, sim.monitors(), sim.fields(), sim.state)
         w.f.attrs["static"] = True
         w.f.attrs["load_steps"] = info["load_steps"]
+        if spinning:
+            w.f.attrs["steady_rotation"] = model.spin
     finally:
         w.close()
     tip = r[-1]
-    print(f"wrote {out}: static equilibrium in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
+    what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
+    print(f"wrote {out}: {what} in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0
 
@@ -190,7 +197,7 @@ def build_parser():
     pl.add_argument("file")
     pl.add_argument("-d", "--outdir", default=None, help="folder for the PNGs (default: beside the file)")
     pl.set_defaults(func=cmd_plot)
-    s = sub.add_parser("static", help="static equilibrium of a [rod] scene, written as one frame")
+    s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation), written as one frame")
     s.add_argument("scene")
     s.add_argument("-o", "--output", help="run file (default: SCENE_static.h5)")
     s.set_defaults(func=cmd_static)
@@ -199,7 +206,7 @@ def build_parser():
     m.add_argument("--json", action="store_true")
     m.add_argument("-n", "--count", type=int, default=20, help="number of lowest modes")
     m.add_argument("--about", choices=("initial", "static"), default="initial",
-                   help="linearise about the scene's initial state (default) or its loaded static equilibrium (rods)")
+                   help="linearise about the scene's initial state (default) or its loaded static equilibrium / steady rotation (rods)")
     m.set_defaults(func=cmd_modes)
     return p
 

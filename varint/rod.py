@@ -158,12 +158,17 @@ class RodModel:
             Lam[j + 1] = Lam[j] @ step
             # strain-free chord: 1/2 (L_j + L_{j+1})^T dr / ds = chi
             r[j + 1] = r[j] + ds * np.linalg.solve(0.5 * (Lam[j] + Lam[j + 1]).T, CHI)
-        V = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
-        Om = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
+        self.velocity = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
+        self.spin = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
+        self.set_configuration(Lam, r)
+
+    def set_configuration(self, Lam, r):
+        """Start from (Lam, r), moving rigidly with rod.initial velocity and angular velocity about its
+        centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``)."""
         m = self.section.rhoA * self.w
         rc = (m[:, None] * r).sum(0) / m.sum()
-        v = V + np.cross(Om, r - rc)
-        omega = np.einsum("nji,j->ni", Lam, Om)  # body angular velocity Lambda^T Omega
+        v = self.velocity + np.cross(self.spin, r - rc)
+        omega = np.einsum("nji,j->ni", Lam, self.spin)  # body angular velocity Lambda^T Omega
         self.Lam0, self.r0 = Lam, r
         self.v0, self.omega0 = v, omega
         self.p0 = m[:, None] * v
@@ -529,37 +534,58 @@ def _potential_gradient(model, Lam, r, load_factor=1.0):
     return g
 
 
-def _force_map(model, Lam, r, load_factor=1.0):
-    """z -> generalised force -dU/d(dr, sigma) at the retracted configuration, (N+1, 6)."""
+def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
+    """z -> generalised force -dU/d(dr, sigma) at the retracted configuration, (N+1, 6).
+
+    With ``spin`` the centrifugal force and torque of a steady rotation about the axis through
+    ``centre`` are added: the force whose zero is a steady rotation (docs/theory.md §9).
+    """
     mask = model.mask
 
     def f(z):
-        return _potential_gradient(model, *_retract(Lam, r, z, mask), load_factor)
+        Lz, rz = _retract(Lam, r, z, mask)
+        g = _potential_gradient(model, Lz, rz, load_factor)
+        if spin is not None:
+            g = g + rotating_frame_kinetics(model, spin, Lz, rz, centre)[0]
+        return g
 
     return f
 
 
-def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30):
+def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     """Minimise the discrete potential by Newton on SE(3)^(N+1) with load continuation.
 
     Returns (Lambda, r, info).  Increments are applied as Lambda cay(sigma), r + dr; the
     load is applied in ``steps`` equal increments, doubled until every increment converges.
+    With ``spin`` (an angular velocity) the equilibrium sought is the *steady rotation*: the shape
+    at rest in the frame spinning about the axis through the initial centre of mass, where the
+    centrifugal loads (scaled by the load factor, i.e. spin^2) balance the elastic forces.  A free
+    spinning rod keeps neutral directions (sliding along and turning about the axis); a tiny
+    Levenberg shift of the Hessian (1e-10 of its diagonal) leaves them at rest.
     """
     import scipy.sparse.linalg as spla
 
     mask = model.mask
     scale = np.where(np.nonzero(mask.ravel())[0] % 6 < 3, model.ds, 1.0)
+    m = model.section.rhoA * model.w
+    centre = (m[:, None] * model.r0).sum(0) / m.sum()
+    if spin is not None:
+        spin = np.asarray(spin, dtype=float)
+        check_rotating_base(model, spin)
     n_steps = steps
     while True:
         Lam, r = model.Lam0.copy(), model.r0.copy()
         ok, iters = True, 0
         for k in range(1, n_steps + 1):
             lf = k / n_steps
+            spin_k = None if spin is None else math.sqrt(lf) * spin
             for _ in range(max_iter):
-                f = _force_map(model, Lam, r, lf)
+                f = _force_map(model, Lam, r, lf, spin_k, centre)
                 z0 = np.zeros(model.nz)
                 g = f(z0)[mask]
                 H = banded_jacobian(f, z0, mask, model.ds)
+                if spin is not None:
+                    H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
                 dz = -spla.spsolve(H.tocsc(), g)
                 if not np.all(np.isfinite(dz)):
                     ok = False
@@ -585,7 +611,7 @@ def _retract(Lam, r, z, mask):
     return Lam @ cay(u[:, 3:]), r + u[:, :3]
 
 
-def rotating_frame_kinetics(model, Omega, Lam, r):
+def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
     """Kinetic energy of the lumped rod seen from a frame spinning at Omega about the centre of mass.
 
     With r = r_c + R(t) rho, Lambda = R(t) Lambda~ (R = exp(t Omega^)), the semi-discrete kinetic
@@ -596,11 +622,12 @@ def rotating_frame_kinetics(model, Omega, Lam, r):
         T = b.q + q'^T C q + 1/2 q'^T M q' + 1/2 q^T H q + (q-independent),   q = (dr, sigma) per node.
 
     Returns per-node blocks ``b`` (N+1, 6), ``C`` and ``H`` (N+1, 6, 6); M is :func:`lumped_mass`.
+    ``centre``: a point of the spin axis (default: the centre of mass of ``r``).
     """
     m = model.section.rhoA * model.w
     inertia = model.section.inertia[None, :] * model.w[:, None]
     Omega = np.asarray(Omega, dtype=float)
-    rc = (m[:, None] * r).sum(0) / m.sum()
+    rc = (m[:, None] * r).sum(0) / m.sum() if centre is None else np.asarray(centre, dtype=float)
     W = hat(Omega)
     n = model.N + 1
     b = np.zeros((n, 6))
@@ -638,7 +665,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
     Lam = model.Lam0 if Lam is None else Lam
     r = model.r0 if r is None else r
     if Omega is None:
-        Omega = np.einsum("ij,j->i", Lam[0], model.omega0[0]) if np.any(model.omega0) else np.zeros(3)
+        Omega = model.spin
     K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
     K = 0.5 * (K + K.T)
     M = lumped_mass(model)[mask]
@@ -657,7 +684,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
     if unbalanced > 1e-9 * size:
         raise SolverError(f"modes: the state is not a steady rotation at angular_velocity {list(map(float, Omega))}: "
                           f"unbalanced generalised force {unbalanced:.3g} (centrifugal {np.max(np.abs(b)):.3g}); "
-                          "spin the rod about a principal axis of its unstressed shape")
+                          "--about static linearises about its steady rotation instead")
     idx = np.flatnonzero(mask.ravel())
     Cf = sp.block_diag(list(C)).toarray()[np.ix_(idx, idx)]
     Hf = sp.block_diag(list(H)).toarray()[np.ix_(idx, idx)]
