@@ -225,11 +225,14 @@ class RodModel:
         B = sig.shape[0]
         elem = np.empty((B, self.N), dtype=c)
         node = np.empty((B, self.N + 1), dtype=c)
+        consts = getattr(self, "_cs_consts", None)
+        if consts is None or consts[0] != load_factor:  # the kernel's complex constants, built once per load
+            consts = (load_factor, sec.inertia.astype(c), sec.J.astype(c), sec.K.astype(c),
+                      (load_factor * self.g).astype(c), (load_factor * self.force).astype(c))
+            self._cs_consts = consts
         _k_pieces(float(h), self.ds, np.ascontiguousarray(Lam_n, dtype=c), np.ascontiguousarray(r_n, dtype=c),
                   np.ascontiguousarray(xi, dtype=c), np.ascontiguousarray(r_1, dtype=c), np.ascontiguousarray(sig, dtype=c),
-                  np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, sec.inertia.astype(c), sec.J.astype(c),
-                  sec.K.astype(c), (load_factor * self.g).astype(c), (load_factor * self.force).astype(c),
-                  self.paper_measure, elem, node)
+                  np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, *consts[1:], self.paper_measure, elem, node)
         return elem, node
 
     def level_energy(self, Lam, r, p, Pi, origin=None):
@@ -274,18 +277,26 @@ class RodModel:
                         sig[b, c::2, d - 3] = 1j * EPS_CS
                     plan.append((c, d))
             self._plan = (sig, dr, plan)
+            self._plan_arrays = (np.array([c for c, _ in plan], dtype=np.int64), np.array([d for _, d in plan], dtype=np.int64))
         return self._plan
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
-        N = self.N
         sig, dr, plan = self._cs_plan()
         elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
-        de = elem.imag / EPS_CS
-        dn = node.imag / EPS_CS
+        out = np.zeros((self.N + 1, 6))
+        _k_accumulate(elem, node, self._plan_arrays[0], self._plan_arrays[1], 1.0 / EPS_CS, out)
+        return out
+
+    def accumulate_reference(self, elem, node):
+        """NumPy twin of ``_k_accumulate`` (tested equal): each element's derivative goes to the one
+        node of the perturbed colour it touches, plus the node pieces of that colour."""
+        N = self.N
+        _, _, plan = self._cs_plan()
+        de, dn = elem.imag / EPS_CS, node.imag / EPS_CS
         out = np.zeros((N + 1, 6))
         e = np.arange(N)
-        owners = (np.where(e % 2 == 0, e, e + 1), np.where(e % 2 == 1, e, e + 1))  # each element: one node per colour
+        owners = (np.where(e % 2 == 0, e, e + 1), np.where(e % 2 == 1, e, e + 1))
         for b, (c, d) in enumerate(plan):
             out[:, d] += np.bincount(owners[c], weights=de[b], minlength=N + 1)
             out[c::2, d] += dn[b, c::2]
@@ -774,12 +785,24 @@ def _k_strains(Lam, r, ds, Om, Ga):
 
 
 @njit(cache=True)
+def _k_accumulate(elem, node, plan_colour, plan_dir, inv_eps, out):
+    """out[j, d] += Im(elem)/eps of the elements touching j (one colour per batch) and Im(node)/eps of j."""
+    B, N = elem.shape
+    for b in range(B):
+        c, d = plan_colour[b], plan_dir[b]
+        for e in range(N):
+            owner = e if e % 2 == c else e + 1
+            out[owner, d] += elem[b, e].imag * inv_eps
+        for j in range(c, N + 1, 2):
+            out[j, d] += node[b, j].imag * inv_eps
+
+
+@njit(cache=True)
 def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd, g, force, paper, elem, node):
     """elem[b, e], node[b, j] of L_d for every perturbation b (see RodModel.lagrangian_pieces)."""
     B = sig.shape[0]
     N = Lam_n.shape[0] - 1
     C = np.empty((3, 3), dtype=np.complex128)
-    Cx = np.empty((3, 3), dtype=np.complex128)
     T = np.empty((3, 3), dtype=np.complex128)
     Ln = np.empty((N + 1, 3, 3), dtype=np.complex128)
     L1 = np.empty((N + 1, 3, 3), dtype=np.complex128)
@@ -791,28 +814,39 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
     Ga0 = np.empty((N, 3), dtype=np.complex128)
     Om1 = np.empty((N, 3), dtype=np.complex128)
     Ga1 = np.empty((N, 3), dtype=np.complex128)
+    # the unperturbed level and cay(xi) are the same for every batch: compute them once
+    Cxs = np.empty((N + 1, 3, 3), dtype=np.complex128)
+    for j in range(N + 1):
+        _k_cay(xi[j, 0], xi[j, 1], xi[j, 2], Cxs[j])
+        if level == 0:
+            _k_mm(Lam_n[j], Cxs[j], L1[j])
+            for i in range(3):
+                r1[j, i] = r_1[j, i]
+        else:
+            for i in range(3):
+                rn[j, i] = r_n[j, i]
+                for m in range(3):
+                    Ln[j, i, m] = Lam_n[j, i, m]
+    if level == 0:
+        _k_strains(L1, r1, ds, Om1, Ga1)
+    else:
+        _k_strains(Ln, rn, ds, Om0, Ga0)
     for b in range(B):
         for j in range(N + 1):
-            _k_cay(xi[j, 0], xi[j, 1], xi[j, 2], Cx)
+            Cx = Cxs[j]
             _k_cay(sig[b, j, 0], sig[b, j, 1], sig[b, j, 2], C)
             if level == 0:
                 _k_mm(Lam_n[j], C, Ln[j])
-                _k_mm(Lam_n[j], Cx, L1[j])
                 _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
                 _k_cay_inv(T, xp[j])
                 for i in range(3):
                     rn[j, i] = r_n[j, i] + dr[b, j, i]
-                    r1[j, i] = r_1[j, i]
             else:
-                for i in range(3):
-                    for m in range(3):
-                        Ln[j, i, m] = Lam_n[j, i, m]
                 _k_mm(Lam_n[j], Cx, T)
                 _k_mm(T, C, L1[j])
                 _k_mm(Cx, C, T)
                 _k_cay_inv(T, xp[j])
                 for i in range(3):
-                    rn[j, i] = r_n[j, i]
                     r1[j, i] = r_1[j, i] + dr[b, j, i]
             kv = 0.0 + 0.0j
             kw = 0.0 + 0.0j
@@ -821,8 +855,10 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
                 kv += v * v
                 kw += inertia[i] * xp[j, i] * xp[j, i]
             k[j] = 0.5 * rhoA * kv + 0.5 * kw / (h * h)
-        _k_strains(Ln, rn, ds, Om0, Ga0)
-        _k_strains(L1, r1, ds, Om1, Ga1)
+        if level == 0:
+            _k_strains(Ln, rn, ds, Om0, Ga0)
+        else:
+            _k_strains(L1, r1, ds, Om1, Ga1)
         for e in range(N):
             W = 0.0 + 0.0j
             gg = 0.0 + 0.0j
