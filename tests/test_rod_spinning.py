@@ -313,6 +313,7 @@ def test_cli_static_and_modes_of_a_spinning_rod(tmp_path, capsys):
     assert np.linalg.norm(r[-1] - r[0]) > 1.0 + 1e-5  # stretched by the centrifugal tension
     with h5py.File(out, "r") as h:
         assert list(h.attrs["steady_rotation"]) == list(BLADE_SPIN)
+        assert h.attrs["turned_deg"] < 1e-6  # spun about a principal axis: the rod keeps its orientation
     # the momenta are those of the rigid rotation of the lumped masses (and section inertias)
     model = build_model(parse_scene(f.read_text()))
     m = model.section.rhoA * model.w

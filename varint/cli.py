@@ -112,8 +112,11 @@ def cmd_modes(args):
             from .rod import static_equilibrium
 
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
-            Lam, r, _ = static_equilibrium(model, spin=spin if np.any(spin) else None)
+            Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
             res = rod_modes(model, count=args.count, Lam=Lam, r=r)
+            if info.get("turned_deg", 0.0) > 1.0:
+                print(f"# the steady rotation found has the rod's end-to-end chord turned by {info['turned_deg']:.1f} deg "
+                      "from the scene's shape (spin about no principal axis of it)", file=sys.stderr)
         else:
             res = rod_modes(model, count=args.count)
         if np.any(spin):
@@ -166,10 +169,13 @@ def cmd_static(args):
         w.f.attrs["load_steps"] = info["load_steps"]
         if spinning:
             w.f.attrs["steady_rotation"] = model.spin
+            w.f.attrs["turned_deg"] = info["turned_deg"]
     finally:
         w.close()
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
+    if info.get("turned_deg", 0.0) > 1.0:
+        what += f", the rod's chord turned by {info['turned_deg']:.1f} deg from the scene's shape (spin about no principal axis of it)"
     print(f"wrote {out}: {what} in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0

@@ -610,7 +610,14 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
             if not ok:
                 break
         if ok:
-            return Lam, r, {"load_steps": n_steps, "iterations": iters}
+            info = {"load_steps": n_steps, "iterations": iters}
+            if spin is not None:
+                # a spin about no principal axis has no steady rotation near the given shape: Newton
+                # then turns the rod as a whole to one that has (reported, since it changes the scene)
+                c0, c1 = model.r0[-1] - model.r0[0], r[-1] - r[0]
+                cosang = np.dot(c0, c1) / (np.linalg.norm(c0) * np.linalg.norm(c1))
+                info["turned_deg"] = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
+            return Lam, r, info
         if n_steps >= 256:
             raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
         n_steps *= 2
