@@ -18,7 +18,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_rod_spinning import SPIN_RATE, _nearest, shaft_model, time_domain_whirl, whirl  # noqa: E402
 
-from varint.rod import rod_modes  # noqa: E402
+from varint.rod_statics import rod_modes  # noqa: E402
 
 
 def main():

@@ -8,7 +8,8 @@ import pytest
 
 from varint import build_model, parse_scene
 from varint.lie import cay, cay_inv
-from varint.rod import RodSimulation, lumped_mass, rod_modes, static_equilibrium
+from varint.rod import RodSimulation
+from varint.rod_statics import lumped_mass, rod_modes, static_equilibrium
 
 from helpers import to_toml
 
@@ -383,7 +384,7 @@ def test_cantilever_frequencies_from_a_time_domain_run():
     """Released from a mix of the first three modes: each modal coordinate oscillates at its Timoshenko frequency."""
     from helpers import zero_crossing_frequency
     from varint.analysis import timoshenko_cantilever
-    from varint.rod import _retract
+    from varint.rod_statics import _retract
 
     sec = solid_section()
     tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"], sec["rotary_inertia"], 1.0)

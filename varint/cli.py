@@ -101,7 +101,8 @@ def cmd_plot(args):
 def cmd_modes(args):
     from .analysis import modes
     from .model import build_model
-    from .rod import RodModel, rod_modes
+    from .rod import RodModel
+    from .rod_statics import rod_modes
     from .scene import load_scene
 
     model = build_model(load_scene(args.scene))
@@ -109,7 +110,7 @@ def cmd_modes(args):
     if isinstance(model, RodModel):
         spin = model.spin  # rod.initial.angular_velocity
         if args.about == "static":
-            from .rod import static_equilibrium
+            from .rod_statics import static_equilibrium
 
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
             Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
@@ -142,7 +143,8 @@ def cmd_static(args):
     from .errors import VarintError as _VE
     from .io import RunWriter
     from .model import build_model
-    from .rod import RodModel, RodSimulation, _pack, static_equilibrium
+    from .rod import RodModel, RodSimulation, _pack
+    from .rod_statics import static_equilibrium
     from .runner import default_output
     from .scene import load_scene
     from .stepper import State

@@ -1,0 +1,221 @@
+"""Statics, steady rotations and linear modes of the rod (docs/theory.md §9).
+
+* :func:`static_equilibrium` — Newton on SE(3)^(N+1) for the minimum of the discrete potential, with
+  load continuation; with ``spin``, the steady rotation (shape at rest in the spinning frame).
+* :func:`rod_modes` — the space-discrete Lagrangian linearised about a configuration: stiffness from
+  banded differences of the exact force, lumped mass, and about a steady rotation the gyroscopic
+  matrix and centrifugal stiffness of :func:`rotating_frame_kinetics`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import SolverError
+from .lie import cay, hat
+from .rod import banded_jacobian
+
+__all__ = ["static_equilibrium", "rod_modes", "rotating_frame_kinetics", "check_rotating_base", "lumped_mass"]
+
+
+def _potential_gradient(model, Lam, r, load_factor=1.0):
+    """d(-U)/d(dr, sigma) of the potential at a configuration (N+1, 6), including the tip torque."""
+    xi = np.zeros_like(r)
+    # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and sum both levels
+    g = (model.derivative(1.0, Lam, r, xi, r, level=0, load_factor=load_factor)
+         + model.derivative(1.0, Lam, r, xi, r, level=1, load_factor=load_factor))
+    if np.any(model.torque):
+        g[-1, 3:] += load_factor * (Lam[-1].T @ model.torque)
+    return g
+
+
+def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
+    """z -> generalised force -dU/d(dr, sigma) at the retracted configuration, (N+1, 6).
+
+    With ``spin`` the centrifugal force and torque of a steady rotation about the axis through
+    ``centre`` are added: the force whose zero is a steady rotation (docs/theory.md §9).
+    """
+    mask = model.mask
+
+    def f(z):
+        Lz, rz = _retract(Lam, r, z, mask)
+        g = _potential_gradient(model, Lz, rz, load_factor)
+        if spin is not None:
+            g = g + rotating_frame_kinetics(model, spin, Lz, rz, centre)[0]
+        return g
+
+    return f
+
+
+def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
+    """Minimise the discrete potential by Newton on SE(3)^(N+1) with load continuation.
+
+    Returns (Lambda, r, info).  Increments are applied as Lambda cay(sigma), r + dr; the
+    load is applied in ``steps`` equal increments, doubled until every increment converges.
+    With ``spin`` (an angular velocity) the equilibrium sought is the *steady rotation*: the shape
+    at rest in the frame spinning about the axis through the initial centre of mass, where the
+    centrifugal loads (scaled by the load factor, i.e. spin^2) balance the elastic forces.  A free
+    spinning rod keeps neutral directions (sliding along and turning about the axis); a tiny
+    Levenberg shift of the Hessian (1e-10 of its diagonal) leaves them at rest.
+    """
+    import scipy.sparse.linalg as spla
+
+    mask = model.mask
+    scale = np.where(np.nonzero(mask.ravel())[0] % 6 < 3, model.ds, 1.0)
+    m = model.section.rhoA * model.w
+    centre = (m[:, None] * model.r0).sum(0) / m.sum()
+    if spin is not None:
+        spin = np.asarray(spin, dtype=float)
+        check_rotating_base(model, spin)
+    n_steps = steps
+    while True:
+        Lam, r = model.Lam0.copy(), model.r0.copy()
+        ok, iters = True, 0
+        for k in range(1, n_steps + 1):
+            lf = k / n_steps
+            spin_k = None if spin is None else math.sqrt(lf) * spin
+            for _ in range(max_iter):
+                f = _force_map(model, Lam, r, lf, spin_k, centre)
+                z0 = np.zeros(model.nz)
+                g = f(z0)[mask]
+                H = banded_jacobian(f, z0, mask, model.ds)
+                if spin is not None:
+                    H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
+                dz = -spla.spsolve(H.tocsc(), g)
+                if not np.all(np.isfinite(dz)):
+                    ok = False
+                    break
+                Lam, r = _retract(Lam, r, dz, mask)
+                iters += 1
+                if np.max(np.abs(dz) / scale) < tol:
+                    break
+            else:
+                ok = False
+            if not ok:
+                break
+        if ok:
+            info = {"load_steps": n_steps, "iterations": iters}
+            if spin is not None:
+                # a spin about no principal axis has no steady rotation near the given shape: Newton
+                # then turns the rod as a whole to one that has (reported, since it changes the scene)
+                c0, c1 = model.r0[-1] - model.r0[0], r[-1] - r[0]
+                cosang = np.dot(c0, c1) / (np.linalg.norm(c0) * np.linalg.norm(c1))
+                info["turned_deg"] = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
+            return Lam, r, info
+        if n_steps >= 256:
+            raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
+        n_steps *= 2
+
+
+def _retract(Lam, r, z, mask):
+    u = np.zeros(mask.shape)
+    u[mask] = z
+    return Lam @ cay(u[:, 3:]), r + u[:, :3]
+
+
+def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
+    """Kinetic energy of the lumped rod seen from a frame spinning at Omega about the centre of mass.
+
+    With r = r_c + R(t) rho, Lambda = R(t) Lambda~ (R = exp(t Omega^)), the semi-discrete kinetic
+    energy T = sum_j 1/2 m_j |Omega x rho_j + rho_j'|^2 + 1/2 w_j^T I_j w_j, w_j = Lambda~_j^T Omega
+    + (body velocity of Lambda~_j), is autonomous.  Expanded to second order in the perturbation
+    rho = rho_0 + dr, Lambda~ = Lambda~_0 cay(sigma) (docs/theory.md §9, "Modes of a spinning rod"):
+
+        T = b.q + q'^T C q + 1/2 q'^T M q' + 1/2 q^T H q + (q-independent),   q = (dr, sigma) per node.
+
+    Returns per-node blocks ``b`` (N+1, 6), ``C`` and ``H`` (N+1, 6, 6); M is :func:`lumped_mass`.
+    ``centre``: a point of the spin axis (default: the centre of mass of ``r``).
+    """
+    m = model.section.rhoA * model.w
+    inertia = model.section.inertia[None, :] * model.w[:, None]
+    Omega = np.asarray(Omega, dtype=float)
+    rc = (m[:, None] * r).sum(0) / m.sum() if centre is None else np.asarray(centre, dtype=float)
+    W = hat(Omega)
+    n = model.N + 1
+    b = np.zeros((n, 6))
+    C = np.zeros((n, 6, 6))
+    H = np.zeros((n, 6, 6))
+    # translation: 1/2 m |Omega x (rho_0 + dr) + dr'|^2
+    C[:, :3, :3] = m[:, None, None] * W
+    H[:, :3, :3] = m[:, None, None] * (W.T @ W)
+    b[:, :3] = m[:, None] * ((r - rc) @ (W.T @ W).T)  # centrifugal force
+    # rotation: w = cay(sigma)^T Ob + dcay_{-sigma} sigma' = Ob + Ob x sigma + 1/2 sigma x (sigma x Ob) + sigma' - 1/2 sigma x sigma'
+    Ob = np.einsum("nji,j->ni", Lam, Omega)  # Lambda^T Omega, the frame's spin seen in each section
+    IO = inertia * Ob
+    Wb = hat(Ob)
+    C[:, 3:, 3:] = inertia[:, :, None] * Wb - 0.5 * hat(IO)
+    H[:, 3:, 3:] = (np.swapaxes(Wb, 1, 2) @ (inertia[:, :, None] * Wb)
+                    + 0.5 * (IO[:, :, None] * Ob[:, None, :] + Ob[:, :, None] * IO[:, None, :])
+                    - np.sum(Ob * IO, axis=1)[:, None, None] * np.eye(3))
+    b[:, 3:] = np.cross(IO, Ob)
+    return b, C, H
+
+
+def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
+    """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
+
+    Stiffness: the Hessian of the discrete potential in (dr, sigma) (banded differences of the
+    exact force); mass: the lumped diagonal of the kinetic energy.  With ``Omega`` (default: the
+    scene's initial angular velocity) the linearisation is about a steady rotation, in the frame
+    spinning with it: the gyroscopic matrix G = C - C^T and the centrifugal stiffness -H of
+    :func:`rotating_frame_kinetics` enter, and the state must be a relative equilibrium there.
+    Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
+    """
+    from .analysis import gyroscopic_modes_of, modes_of
+
+    mask = model.mask
+    Lam = model.Lam0 if Lam is None else Lam
+    r = model.r0 if r is None else r
+    if Omega is None:
+        Omega = model.spin
+    K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
+    K = 0.5 * (K + K.T)
+    M = lumped_mass(model)[mask]
+    if not mask[[0, -1], :3].all() and np.any(model.scene.rod.initial.velocity or 0.0):
+        raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
+                          "rod.initial.velocity must be zero")
+    if not np.any(Omega):
+        return modes_of(K, M, count, vectors)
+    check_rotating_base(model, Omega)
+    b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
+    f = _potential_gradient(model, Lam, r) + b
+    # force scale: the centrifugal loads, or the elastic force of a unit strain (diag K x unit displacement)
+    unit = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, model.ds, 1.0)
+    size = max(np.max(np.abs(b)), np.max(np.abs(np.diag(K)) * unit))
+    unbalanced = np.max(np.abs(f[mask]))
+    if unbalanced > 1e-9 * size:
+        raise SolverError(f"modes: the state is not a steady rotation at angular_velocity {list(map(float, Omega))}: "
+                          f"unbalanced generalised force {unbalanced:.3g} (centrifugal {np.max(np.abs(b)):.3g}); "
+                          "--about static linearises about its steady rotation instead")
+    idx = np.flatnonzero(mask.ravel())
+    Cf = sp.block_diag(list(C)).toarray()[np.ix_(idx, idx)]
+    Hf = sp.block_diag(list(H)).toarray()[np.ix_(idx, idx)]
+    return gyroscopic_modes_of(K - Hf, Cf - Cf.T, M, count, vectors)
+
+
+def check_rotating_base(model, Omega):
+    """A steady rotation must be one the time-domain rod can perform: one-line error otherwise."""
+    if model.paper_measure:
+        raise SolverError("modes: about a spinning state only with rod.measure = \"reference\" (the paper's measure "
+                          "makes the mass depend on the stretch)")
+    if np.any(model.force) or np.any(model.torque) or np.any(np.cross(model.g, Omega)):
+        raise SolverError("modes: a spinning rod with rod.load or gravity across the spin axis is not in a steady "
+                          "rotation (the loads turn relative to it)")
+    m = model.section.rhoA * model.w
+    rc = (m[:, None] * model.r0).sum(0) / m.sum()
+    ends = model.scene.rod.ends
+    for node, key in ((0, "s0"), (model.N, "sL")):
+        kind = getattr(ends, key)
+        off_axis = np.linalg.norm(np.cross(Omega, model.r0[node] - rc)) > 1e-12 * model.L * np.linalg.norm(Omega)
+        if kind == "clamped" or (kind == "pinned" and off_axis):
+            raise SolverError(f"modes: rod.ends.{key} = \"{kind}\" cannot turn with the spin at angular_velocity "
+                              f"{[float(x) for x in Omega]}; only pinned ends on the spin axis can")
+
+
+def lumped_mass(model):
+    """Diagonal of the kinetic metric per node and direction (rho A w_j for dr, I w_j for sigma), (N+1, 6)."""
+    return np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
+                           model.section.inertia[None, :] * model.w[:, None]], axis=1)
