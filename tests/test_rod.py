@@ -253,9 +253,18 @@ def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
     run = read_run(tmp_path / "rod.h5")
     assert run["fields"]["rod/r"].shape == (21, 11, 3)
     assert run["fields"]["rod/Lambda"].shape == (21, 11, 3, 3)
-    for k in ("energy", "kinetic_energy", "linear_momentum", "angular_momentum", "frame_orthogonality"):
+    for k in ("energy", "kinetic_energy", "linear_momentum", "angular_momentum", "angular_momentum_cm", "frame_orthogonality"):
         assert k in run["monitors"]
     assert np.max(run["monitors"]["frame_orthogonality"]) < 1e-14
+    # the plot shows the rod's invariants, not the tube's "fluid momentum"
+    from varint.plotting import monitor_panels, plot_run
+
+    labels = [label for label, _ in monitor_panels(run["monitors"])]
+    assert any("angular momentum" in x for x in labels) and any("orthogonality" in x for x in labels)
+    assert not any("fluid" in x for x in labels)
+    J = dict(monitor_panels(run["monitors"]))["change of angular momentum [kg m2/s]"][0][1]
+    assert J[0] == 0.0 and np.max(J) < 1e-12  # a free spinning rod: |J_cm - J_cm0| at round-off
+    assert len(plot_run(tmp_path / "rod.h5", tmp_path / "png")) == 2
 
 
 @pytest.mark.validation

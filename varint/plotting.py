@@ -8,7 +8,42 @@ import numpy as np
 
 from .io import read_run
 
-__all__ = ["plot_run"]
+__all__ = ["plot_run", "monitor_panels"]
+
+
+def monitor_panels(mon):
+    """[(axis label, [(curve name, values), ...]), ...] for a run's monitors.
+
+    Tube runs: energy and mass errors, the fluid's axial momentum, Newton iterations.  Rod runs
+    (they have ``frame_orthogonality``): energy error and terms, the changes of linear momentum and of
+    angular momentum about the centre of mass (reactions of supports included), frame
+    orthogonality, Newton iterations.
+    """
+    def rel(y):
+        return (y - y[0]) / abs(y[0]) if y[0] != 0 else y - y[0]
+
+    def change(y):
+        return np.linalg.norm(y - y[0], axis=1)
+
+    panels = []
+    if "frame_orthogonality" in mon:
+        panels.append(("relative energy error", [("energy", rel(mon["energy"]))]))
+        terms = [(k.replace("energy_", ""), mon[k]) for k in ("kinetic_energy", "energy_bending_torsion", "energy_stretch_shear",
+                                                             "energy_gravity", "energy_load") if k in mon and np.any(mon[k])]
+        panels.append(("energy terms [J]", terms))
+        panels.append(("change of linear momentum [kg m/s]", [("|P - P0|", change(mon["linear_momentum"]))]))
+        if "angular_momentum_cm" in mon:
+            panels.append(("change of angular momentum [kg m2/s]", [("|J_cm - J_cm0|", change(mon["angular_momentum_cm"]))]))
+        panels.append(("frame orthogonality |L^T L - I|", [("max over nodes", mon["frame_orthogonality"])]))
+    else:
+        for name, label in (("energy", "relative energy error"), ("mass", "relative mass error")):
+            if name in mon:
+                panels.append((label, [(name, rel(mon[name]))]))
+        if "linear_momentum" in mon:
+            panels.append(("fluid momentum [kg m/s]", [("x", mon["linear_momentum"][:, 0])]))
+    if "newton_iterations" in mon:
+        panels.append(("Newton iterations", [("per step", mon["newton_iterations"])]))
+    return panels
 
 
 def plot_run(path, outdir=None):
@@ -26,19 +61,18 @@ def plot_run(path, outdir=None):
     outdir.mkdir(parents=True, exist_ok=True)
     written = []
 
-    panels = [("energy", "relative energy error"), ("mass", "relative mass error"),
-              ("linear_momentum", "fluid momentum [kg m/s]"), ("newton_iterations", "Newton iterations")]
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
-    for ax, (name, label) in zip(axes.flat, panels):
-        if name not in mon:
-            ax.set_visible(False)
-            continue
-        y = mon[name]
-        if name in ("energy", "mass"):
-            y = (y - y[0]) / abs(y[0]) if y[0] != 0 else y - y[0]
-        if y.ndim == 2:
-            y = y[:, 0]
-        ax.plot(t, y, lw=1)
+    panels = monitor_panels(mon)
+    ncol = 3 if len(panels) > 4 else 2
+    fig, axes = plt.subplots(2, ncol, figsize=(5 * ncol, 6.5), constrained_layout=True)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    for ax, (label, curves) in zip(axes.flat, panels):
+        for name, y in curves:
+            ax.plot(t, y, lw=1, label=name)
+        if len(curves) > 1:
+            ax.legend(fontsize=7)
+        if label.startswith(("change", "frame")) and np.all(np.concatenate([c[1] for c in curves]) >= 0):
+            ax.set_yscale("symlog", linthresh=1e-16)  # round-off-sized quantities: show their decades
         ax.set_xlabel("t [s]")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
