@@ -84,7 +84,9 @@ class RunWriter:
             raise OutputError(f"{self.path}: was started from a different scene; resume with the same scene file")
 
     def _trim(self):
-        k = int(self.f["checkpoint"].attrs["records"])
+        cp = self.f["checkpoint"]
+        slot = cp.attrs.get("slot", "")
+        k = int((cp[slot] if slot else cp).attrs["records"])
         for d in self._datasets():
             if d.shape[0] != k:
                 d.resize(k, axis=0)
@@ -110,19 +112,30 @@ class RunWriter:
                 self._put(f[f"monitors/{name}"], k, val)
             for name, val in fields.items():
                 self._put(f[f"fields/{name}"], k, val)
+            # The restart state goes to the slot *not* in use, is flushed, and only then does the
+            # pointer move: a run killed mid-write (SIGKILL, no chance to clean up) still finds a
+            # consistent state under the old pointer.  (Overwriting a single slot in place let the raw
+            # state reach the file before its step counter: a resume then restarted one record late.)
             cp = f["checkpoint"]
+            slot = "b" if cp.attrs.get("slot", "") == "a" else "a"
+            g = cp.require_group(slot)
             for name in ("q", "p", "lam", "v", "q_prev"):
                 val = getattr(state, name)
                 if val is None:
-                    if name in cp:
-                        del cp[name]
+                    if name in g:
+                        del g[name]
                     continue
-                if name in cp and cp[name].shape == val.shape:
-                    cp[name][...] = val
+                if name in g and g[name].shape == val.shape:
+                    g[name][...] = val
                 else:
-                    if name in cp:
-                        del cp[name]
-                    cp.create_dataset(name, data=val)
+                    if name in g:
+                        del g[name]
+                    g.create_dataset(name, data=val)
+            g.attrs["n"] = state.n
+            g.attrs["t"] = state.t
+            g.attrs["records"] = k + 1
+            f.flush()
+            cp.attrs["slot"] = slot
             cp.attrs["n"] = state.n
             cp.attrs["t"] = state.t
             cp.attrs["records"] = k + 1
@@ -150,10 +163,12 @@ def _oserr(exc):
 
 def read_checkpoint(f):
     cp = f["checkpoint"]
-    if "q" not in cp:
+    slot = cp.attrs.get("slot", "")
+    src = cp[slot] if slot else cp  # files written before the two slots kept the state in the group itself
+    if "q" not in src:
         raise OutputError("the run file has no checkpoint yet; start the run again without --resume")
-    get = lambda n: cp[n][...] if n in cp else None  # noqa: E731
-    return State(int(cp.attrs["n"]), float(cp.attrs["t"]), get("q"), get("p"), get("lam"), get("v"), get("q_prev"))
+    get = lambda n: src[n][...] if n in src else None  # noqa: E731
+    return State(int(src.attrs["n"]), float(src.attrs["t"]), get("q"), get("p"), get("lam"), get("v"), get("q_prev"))
 
 
 def read_run(path):
