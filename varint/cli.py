@@ -66,6 +66,7 @@ def cmd_check(args):
     if "rod" in d:
         print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m")
         print("  rod: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["rod"].items()))
+        print(f"  initial shape: {d['initial_shape']}")
     else:
         print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, "
               f"{'periodic' if lat['periodic'] else 'closed'} ends")

@@ -143,6 +143,13 @@ class RodModel:
         self.w = np.full(self.N + 1, self.ds)
         self.w[0] = self.w[-1] = 0.5 * self.ds
         self._initial(rod.initial or {})
+        self.steady_rotation = None
+        if (rod.initial or {}).get("shape") == "steady_rotation":
+            from .rod_statics import static_equilibrium
+
+            Lam, r, info = static_equilibrium(self, spin=self.spin)
+            self.set_configuration(Lam, r)
+            self.steady_rotation = info
 
     # -- initial state -------------------------------------------------------
 
@@ -325,6 +332,9 @@ class RodModel:
                 "terms": ["rod_kinetic", "bending_torsion", "stretch_shear"] + (["gravity"] if np.any(self.g) else [])
                 + (["tip_force"] if np.any(self.force) else []) + (["tip_torque"] if np.any(self.torque) else []),
                 "invariants": self.expected_invariants(), "scheme": "midpoint",
+                "initial_shape": "given" if self.steady_rotation is None else
+                f"steady rotation ({self.steady_rotation['iterations']} Newton iterations, chord turned "
+                f"{self.steady_rotation['turned_deg']:.3g} deg)",
                 "lattice": {"elements": self.N, "ds": self.ds, "parcels": 0, "periodic": False},
                 "rod": {"dimension": self.dim, "measure": "paper" if self.paper_measure else "reference",
                         "mass_per_length": s.rhoA, "bending_stiffness": s.EI, "torsional_stiffness": s.GJ,

@@ -129,6 +129,9 @@ SCHEMA = MappingProxyType({
         Key("velocity", "vec3", (0.0, 0.0, 0.0), "m/s", "rigid translation velocity"),
         Key("angular_velocity", "vec3", (0.0, 0.0, 0.0), "rad/s", "rigid rotation about the centre of mass (spatial)"),
         Key("curvature", "vec3", (0.0, 0.0, 0.0), "1/m", "uniform body curvature of the initial shape (the stress-free reference stays straight along +x)"),
+        Key("shape", "str", "given", "", "\"given\": start from that shape; \"steady_rotation\": from the shape at rest in the frame "
+            "spinning with angular_velocity (stretched by the centrifugal loads, as varint static finds it)",
+            choices=("given", "steady_rotation")),
     ),
     "rod.load": (
         Key("force", "vec3", (0.0, 0.0, 0.0), "N", "dead force at s = L"),
@@ -442,6 +445,8 @@ class _Validator:
             for k in material:
                 if rod[k] is None:
                     self.bad(f"rod.{k}", "missing (material form: youngs_modulus, density, thickness; or the stiffness form)")
+        if rod.initial.shape == "steady_rotation" and not any(rod.initial.angular_velocity):
+            self.bad("rod.initial.shape", "\"steady_rotation\" needs a nonzero rod.initial.angular_velocity")
         if rod.dimension == 2:
             planar = {"rod.initial.velocity": (rod.initial.velocity, 2), "rod.initial.angular_velocity": (rod.initial.angular_velocity, 0),
                       "rod.initial.curvature": (rod.initial.curvature, 0), "rod.load.force": (rod.load.force, 2),
