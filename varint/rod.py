@@ -236,8 +236,10 @@ class RodModel:
             consts = (load_factor, sec.inertia.astype(c), sec.J.astype(c), sec.K.astype(c),
                       (load_factor * self.g).astype(c), (load_factor * self.force).astype(c))
             self._cs_consts = consts
-        _k_pieces(float(h), self.ds, np.ascontiguousarray(Lam_n, dtype=c), np.ascontiguousarray(r_n, dtype=c),
-                  np.ascontiguousarray(xi, dtype=c), np.ascontiguousarray(r_1, dtype=c), np.ascontiguousarray(sig, dtype=c),
+        # the levels are real (only the perturbations sig, dr are complex): no conversion needed
+        f8 = np.float64
+        _k_pieces(float(h), self.ds, np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                  np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), np.ascontiguousarray(sig, dtype=c),
                   np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, *consts[1:], self.paper_measure, elem, node)
         return elem, node
 
