@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .errors import VarintError
 
-__all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
+__all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "sparse_modes_of", "sparse_gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
            "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl"]
 
 
@@ -74,8 +74,9 @@ def gyroscopic_modes_of(K, G, M, count, vectors=False):
     frequency w; a real pair +-s as frequency 0, growth rate s; a flutter quadruple +-a +- i w as two
     entries (w, |a|).  Zero eigenvalues (rigid motions, Jordan blocks) are those below 1e-7 of the
     largest |lam|: their round-off splitting is ~sqrt(eps); for the same reason real and imaginary
-    parts below that are reported as 0 (the threshold of :func:`modes_of`, 1e-14 on w^2).  Sorted by frequency, then growth
-    rate descending; with ``vectors`` the complex displacement parts of the mode shapes too.
+    parts below that are reported as 0 (the threshold of :func:`modes_of`, 1e-14 on w^2).  Sorted
+    by frequency, then growth rate descending; with ``vectors`` the complex displacement parts of
+    the mode shapes too.
     """
     n = len(M)
     A = np.zeros((2 * n, 2 * n))
@@ -83,11 +84,21 @@ def gyroscopic_modes_of(K, G, M, count, vectors=False):
     A[n:, :n] = -K / M[:, None]
     A[n:, n:] = -G / M[:, None]
     lam, X = sla.eig(A)
-    big = max(np.max(np.abs(lam)), 1e-300)
+    return _one_per_degree_of_freedom(lam, X[:n], max(np.max(np.abs(lam)), 1e-300), count, vectors, complete=True)
+
+
+def _one_per_degree_of_freedom(lam, X, big, count, vectors, complete):
+    """Select one eigenvalue per degree of freedom from a Hamiltonian spectrum (see above).
+
+    ``complete``: ``lam`` is the whole spectrum, so half of a cluster of zeros is one per degree of
+    freedom; otherwise (a partial, shift-inverted spectrum) every zero found is kept and paired by
+    the order it comes in.
+    """
     zero = np.abs(lam) <= 1e-7 * big
     tiny = 1e-7 * big  # parts below this are round-off (double eigenvalues split by ~sqrt(eps))
     keep = ~zero & ((lam.imag > tiny) | ((np.abs(lam.imag) <= tiny) & (lam.real > 0)))
-    picks = list(np.flatnonzero(keep)) + list(np.flatnonzero(zero)[: int(zero.sum()) // 2])
+    zeros = np.flatnonzero(zero)
+    picks = list(np.flatnonzero(keep)) + list(zeros[: (len(zeros) + (0 if complete else 1)) // 2])
     res = []
     for i in picks:
         real_pair = abs(lam[i].imag) <= tiny and not zero[i]
@@ -96,7 +107,53 @@ def gyroscopic_modes_of(K, G, M, count, vectors=False):
     order = sorted(range(len(res)), key=lambda k: (res[k]["frequency"], -res[k]["growth_rate"]))
     res = [res[k] for k in order][:count]
     if vectors:
-        return res, X[:n, [picks[k] for k in order][:count]]
+        return res, X[:, [picks[k] for k in order][:count]]
+    return res
+
+
+def highest_frequency_estimate(K, M):
+    """max_i sqrt(sum_j |K_ij| / M_i): a Gershgorin bound on the largest frequency (sparse or dense K)."""
+    rows = np.asarray(abs(K).sum(axis=1)).ravel()
+    return float(np.sqrt(np.max(rows / M)))
+
+
+def sparse_modes_of(K, M, count, vectors=False):
+    """The lowest ``count`` modes of K x = w^2 diag(M) x by shift-invert Lanczos (scipy eigsh).
+
+    For models too large for the dense solver.  The shift sits just below zero (1e-8 of the largest
+    w^2, estimated by :func:`highest_frequency_estimate`), so rigid modes and instabilities are found
+    with the lowest oscillations; classification as in :func:`modes_of`.
+    """
+    import scipy.sparse.linalg as spla
+
+    K = sp.csc_matrix(K)
+    big2 = highest_frequency_estimate(K, M) ** 2
+    k = min(count, K.shape[0] - 2)
+    w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM")
+    order = np.argsort(w2)
+    w2, X = w2[order], X[:, order]
+    res = []
+    for lam in w2:
+        if lam >= -1e-14 * big2:
+            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
+        else:
+            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
+    return (res, X) if vectors else res
+
+
+def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
+    """The lowest ``count`` modes of M q'' + G q' + K q = 0 by shift-invert Arnoldi (scipy eigs) on the
+    first-order form, shifted by 1e-4 of the estimated highest frequency; classification as in
+    :func:`gyroscopic_modes_of`.  For models too large for the dense solver."""
+    import scipy.sparse.linalg as spla
+
+    n = len(M)
+    Minv = sp.diags(1.0 / M)
+    A = sp.bmat([[None, sp.identity(n)], [-(Minv @ sp.csr_matrix(K)), -(Minv @ sp.csr_matrix(G))]]).tocsc()
+    big = highest_frequency_estimate(K, M)
+    k = min(2 * count + 4, 2 * n - 2)
+    lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM")
+    res = _one_per_degree_of_freedom(lam, X[:n], big, count, vectors, complete=False)
     return res
 
 

@@ -154,7 +154,11 @@ def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
     return b, C, H
 
 
-def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
+#: above this many unknowns rod_modes uses the sparse shift-invert solvers (dense eig is O(n^3))
+DENSE_MODES_LIMIT = 1500
+
+
+def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, method="auto"):
     """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
 
     Stiffness: the Hessian of the discrete potential in (dr, sigma) (banded differences of the
@@ -162,38 +166,43 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None):
     scene's initial angular velocity) the linearisation is about a steady rotation, in the frame
     spinning with it: the gyroscopic matrix G = C - C^T and the centrifugal stiffness -H of
     :func:`rotating_frame_kinetics` enter, and the state must be a relative equilibrium there.
+    ``method``: "dense" (every mode), "sparse" (the lowest ``count``, shift-invert) or "auto"
+    (sparse above :data:`DENSE_MODES_LIMIT` unknowns).
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
-    from .analysis import gyroscopic_modes_of, modes_of
+    from .analysis import gyroscopic_modes_of, modes_of, sparse_gyroscopic_modes_of, sparse_modes_of
 
     mask = model.mask
     Lam = model.Lam0 if Lam is None else Lam
     r = model.r0 if r is None else r
     if Omega is None:
         Omega = model.spin
-    K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds).toarray()
-    K = 0.5 * (K + K.T)
+    sparse = method == "sparse" or (method == "auto" and model.nz > DENSE_MODES_LIMIT)
+    K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds)
+    K = (0.5 * (K + K.T)).tocsc()
     M = lumped_mass(model)[mask]
     if not mask[[0, -1], :3].all() and np.any(model.scene.rod.initial.velocity or 0.0):
         raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
                           "rod.initial.velocity must be zero")
     if not np.any(Omega):
-        return modes_of(K, M, count, vectors)
+        return sparse_modes_of(K, M, count, vectors) if sparse else modes_of(K.toarray(), M, count, vectors)
     check_rotating_base(model, Omega)
     b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
     f = _potential_gradient(model, Lam, r) + b
     # force scale: the centrifugal loads, or the elastic force of a unit strain (diag K x unit displacement)
     unit = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, model.ds, 1.0)
-    size = max(np.max(np.abs(b)), np.max(np.abs(np.diag(K)) * unit))
+    size = max(np.max(np.abs(b)), np.max(np.abs(K.diagonal()) * unit))
     unbalanced = np.max(np.abs(f[mask]))
     if unbalanced > 1e-9 * size:
         raise SolverError(f"modes: the state is not a steady rotation at angular_velocity {list(map(float, Omega))}: "
                           f"unbalanced generalised force {unbalanced:.3g} (centrifugal {np.max(np.abs(b)):.3g}); "
                           "--about static linearises about its steady rotation instead")
     idx = np.flatnonzero(mask.ravel())
-    Cf = sp.block_diag(list(C)).toarray()[np.ix_(idx, idx)]
-    Hf = sp.block_diag(list(H)).toarray()[np.ix_(idx, idx)]
-    return gyroscopic_modes_of(K - Hf, Cf - Cf.T, M, count, vectors)
+    Cf = sp.block_diag(list(C)).tocsr()[idx][:, idx]
+    Hf = sp.block_diag(list(H)).tocsr()[idx][:, idx]
+    if sparse:
+        return sparse_gyroscopic_modes_of(K - Hf, Cf - Cf.T, M, count, vectors)
+    return gyroscopic_modes_of((K - Hf).toarray(), (Cf - Cf.T).toarray(), M, count, vectors)
 
 
 def check_rotating_base(model, Omega):
