@@ -82,9 +82,10 @@ STIFF = dict(SECTION, axial_stiffness=1e4, shear_stiffness=8e3)
 SPIN = {"velocity": [0.1, 0.2, -0.3], "angular_velocity": [13.0, 40.0, -27.0]}
 
 
-def tumbling_model(h=1e-2, at_rest=False):
+def tumbling_model(h=1e-2, at_rest=False, measure="reference"):
     """The free rod spinning about an oblique axis (also used by scripts/rod_long_run.py)."""
-    return build_model(rod_scene(nodes=11, h=h, section=STIFF, initial=dict(SPIN, velocity=[0.0, 0.0, 0.0]) if at_rest else SPIN))
+    return build_model(rod_scene(nodes=11, h=h, section=STIFF, measure=measure,
+                                 initial=dict(SPIN, velocity=[0.0, 0.0, 0.0]) if at_rest else SPIN))
 
 
 def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
