@@ -153,6 +153,25 @@ def test_free_rod_far_from_the_origin_keeps_momenta_at_round_off():
     assert errors[False]["J"] > 10 * errors[True]["J"], errors
 
 
+def test_a_step_too_large_for_the_rotation_fails_with_one_line_and_keeps_the_file(tmp_path, capsys):
+    """h|omega| = 5 (the rigid rotation alone is 136 degrees per step): Newton may converge, but to
+    frames turning by ~170 degrees per step with the energy off by O(1).  The run stops with one line
+    naming the step and the node; what was written stays readable.  (Before: a traceback from a
+    division by zero where an iterate reached the Cayley chart's singularity, or a wrong result.)"""
+    from varint.cli import main
+    from varint.io import read_run
+
+    example = Path(__file__).resolve().parent.parent / "examples" / "tumbling_rod.toml"
+    f = tmp_path / "big_step.toml"
+    f.write_text(example.read_text().replace("step = 5.0e-3", "step = 0.1").replace("every = 4", "every = 1"))
+    out = tmp_path / "big_step.h5"
+    assert main(["run", str(f), "-o", str(out), "-q"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "turns by" in err[0] and "reduce time.step" in err[0], err
+    run = read_run(out)
+    assert len(run["time"]) >= 1 and np.all(np.isfinite(run["fields"]["rod/r"]))
+
+
 # -- the PyElastica cantilever section (ANCHORS.md): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
 
 def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):

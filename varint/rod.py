@@ -49,6 +49,8 @@ RATE_REFRESH_ROD = 0.5
 #: residual, and over 10^4 tumbling steps tolerance-sized residuals added up to 3e-12 of the angular
 #: momentum (1.7e-14 when polished; docs/validation.md)
 POLISH_ROD = 10
+#: largest accepted rotation per step, |xi| = 2 tan(theta/2) at theta = 90 degrees
+XI_MAX = 2.0
 
 
 def reorthonormalize(Lam):
@@ -291,7 +293,12 @@ class RodModel:
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
         sig, dr, plan = self._cs_plan()
-        elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
+        try:
+            elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
+        except ZeroDivisionError:
+            # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
+            # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
+            return np.full((self.N + 1, 6), np.nan)
         out = np.zeros((self.N + 1, 6))
         _k_accumulate(elem, node, self._plan_arrays[0], self._plan_arrays[1], 1.0 / EPS_CS, out)
         return out
@@ -494,6 +501,16 @@ class RodSimulation:
         if res.message != "damped Newton":
             self._factor = res.factor
         r_1, xi = self._split(res.z, Lam_n, r_n)
+        turn = np.linalg.norm(xi, axis=1)
+        if np.max(turn) > XI_MAX:
+            # Newton found a solution whose frames turn by more than 90 degrees in one step: either the
+            # step cannot resolve the rotation or the iteration landed on a spurious root (energy off
+            # by O(1) in tests).  Neither is a result to keep.
+            j = int(np.argmax(turn))
+            deg = math.degrees(2.0 * math.atan(0.5 * turn[j]))
+            self._factor = None
+            raise SolverError(f"step {st.n + 1} (t = {st.t + self.h:.6g} s): node {j} turns by {deg:.0f} degrees in one "
+                              "step (more than 90); reduce time.step", step=st.n + 1, time=st.t + self.h)
         Lam_1 = reorthonormalize(Lam_n @ cay(xi))
         D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.torque_force(self.h, Lam_1)
         p1 = np.concatenate([D2[:, :3].ravel(), D2[:, 3:].ravel()])
