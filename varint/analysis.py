@@ -129,7 +129,11 @@ def sparse_modes_of(K, M, count, vectors=False):
     K = sp.csc_matrix(K)
     big2 = highest_frequency_estimate(K, M) ** 2
     k = min(count, K.shape[0] - 2)
-    w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM")
+    try:
+        w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM")
+    except (spla.ArpackNoConvergence, RuntimeError) as exc:
+        raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
+                          "ask for fewer modes (-n)") from None
     order = np.argsort(w2)
     w2, X = w2[order], X[:, order]
     res = []
@@ -152,7 +156,11 @@ def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
     A = sp.bmat([[None, sp.identity(n)], [-(Minv @ sp.csr_matrix(K)), -(Minv @ sp.csr_matrix(G))]]).tocsc()
     big = highest_frequency_estimate(K, M)
     k = min(2 * count + 4, 2 * n - 2)
-    lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM")
+    try:
+        lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM")
+    except (spla.ArpackNoConvergence, RuntimeError) as exc:
+        raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
+                          "ask for fewer modes (-n)") from None
     res = _one_per_degree_of_freedom(lam, X[:n], big, count, vectors, complete=False)
     return res
 
