@@ -215,3 +215,20 @@ def test_failed_step_keeps_what_was_written(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and "step 24" in err[0]
     run = read_run(out)
     assert len(run["time"]) == 5 and run["time"][-1] == pytest.approx(2e-4)
+
+
+def test_a_run_that_blows_up_reports_one_line(tmp_path, capsys):
+    """A pulse of 5 bar in the rubber tube drives Newton out of the physical domain (negative
+    densities): exactly one stderr line (no numpy warnings), and the records written so far stay."""
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parent.parent / "examples" / "rubber_tube_pulse.toml"
+    text = example.read_text()
+    assert "amplitude = " in text
+    f = tmp_path / "too_strong.toml"
+    f.write_text("\n".join("amplitude = 5.0e5" if line.startswith("amplitude = ") else line for line in text.splitlines()))
+    out = tmp_path / "too_strong.h5"
+    assert main(["run", str(f), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("varint: error: Newton failed at step"), err
+    assert len(read_run(out)["time"]) >= 1

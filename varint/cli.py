@@ -225,7 +225,11 @@ def main(argv=None):
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="varint: %(message)s")
     try:
-        return args.func(args)
+        # Newton iterates may leave the physical domain (negative density, a frame at the Cayley
+        # singularity): the solvers test every residual for finiteness and fail with one line, so
+        # numpy's floating-point warnings would only add noise to that line
+        with np.errstate(all="ignore"):
+            return args.func(args)
     except VarintError as exc:
         for line in str(exc).splitlines():
             print(f"varint: error: {line}", file=sys.stderr)
