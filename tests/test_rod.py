@@ -172,6 +172,21 @@ def test_a_step_too_large_for_the_rotation_fails_with_one_line_and_keeps_the_fil
     assert len(run["time"]) >= 1 and np.all(np.isfinite(run["fields"]["rod/r"]))
 
 
+def test_static_of_a_free_rod_is_refused_in_one_line(tmp_path, capsys):
+    """Free-free and not spinning: no unique static equilibrium (before: a scipy singular-matrix warning
+    and, after 256 load steps, a misleading "did not converge")."""
+    from varint.cli import main
+
+    d = {"title": "free", "tube": {"length": 1.0, "nodes": 11, "radius": 0.01},
+         "rod": dict(SECTION, ends={"s0": "free", "sL": "free"}, load={"force": [0.0, 1.0, 0.0]}),
+         "time": {"step": 1e-3, "end": 1.0}}
+    f = tmp_path / "free.toml"
+    f.write_text(to_toml(d))
+    assert main(["static", str(f), "-o", str(tmp_path / "s.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "both rod.ends free" in err[0], err
+
+
 # -- the PyElastica cantilever section (ANCHORS.md): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
 
 def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):

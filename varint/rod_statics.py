@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -70,6 +71,10 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     if spin is not None:
         spin = np.asarray(spin, dtype=float)
         check_rotating_base(model, spin)
+    elif mask[[0, -1], :3].all():
+        raise SolverError("static equilibrium: with both rod.ends free the rod can move rigidly, so it has no "
+                          "unique static equilibrium; clamp or pin an end (or give rod.initial.angular_velocity "
+                          "for a steady rotation)")
     n_steps = steps
     while True:
         Lam, r = model.Lam0.copy(), model.r0.copy()
@@ -84,7 +89,9 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
                 H = banded_jacobian(f, z0, mask, model.ds)
                 if spin is not None:
                     H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
-                dz = -spla.spsolve(H.tocsc(), g)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", spla.MatrixRankWarning)  # singular: dz is not finite, handled below
+                    dz = -spla.spsolve(H.tocsc(), g)
                 if not np.all(np.isfinite(dz)):
                     ok = False
                     break
