@@ -123,3 +123,18 @@ def test_webster_horn_modes():
     assert np.all(f_model > 0)  # closed duct: no rigid translation, every mode oscillates
     f_model = f_model[:4]
     assert np.allclose(f_model, f_webster, rtol=2e-3), (f_model, f_webster)
+
+
+def test_sparse_tube_modes_equal_the_dense_ones():
+    """modes(method="sparse") (shift-invert Lanczos, used above 3000 inertial unknowns) returns the
+    dense solver's lowest modes; a 2000-parcel tube (4000 unknowns) takes it by default."""
+    from varint.analysis import DENSE_TUBE_MODES_LIMIT
+
+    _, small = make(gas_scene(nodes=33, parcels=32))
+    dense = np.array([m["frequency"] for m in modes(small, count=8, method="dense")])
+    sparse = np.array([m["frequency"] for m in modes(small, count=8, method="sparse")])
+    assert np.allclose(sparse, dense, rtol=1e-10)
+    _, big = make(gas_scene(nodes=2001, parcels=2000))
+    assert big.nq > DENSE_TUBE_MODES_LIMIT and big.nlam == 0
+    f = np.array([m["frequency"] for m in modes(big, count=4)])
+    assert np.all(np.abs(f / dense[:4] - 1) < 5e-3)  # the same lowest branch, on a finer lattice

@@ -35,15 +35,31 @@ def linearization(model, z=None):
     return model.mass.copy(), 0.5 * (Kqq + Kqq.T)
 
 
-def modes(model, count=20, z=None, vectors=False):
+#: above this many inertial unknowns the tube's modes come from a sparse shift-invert solver
+DENSE_TUBE_MODES_LIMIT = 3000
+
+
+def modes(model, count=20, z=None, vectors=False, method="auto"):
     """Lowest eigenfrequencies of the linearised model.
 
     Returns a list of ``{"frequency": omega [rad/s], "growth_rate": sigma [1/s]}``
     sorted by frequency (an unstable mode has frequency 0 and sigma > 0);
-    with ``vectors`` the mode shapes (nq, count) are returned too.
+    with ``vectors`` the mode shapes (nq, count) are returned too.  ``method``: "dense", "sparse"
+    (shift-invert Lanczos for the lowest ``count``; models without algebraic unknowns) or "auto"
+    (sparse above :data:`DENSE_TUBE_MODES_LIMIT` inertial unknowns when possible).
     """
-    if model.nq > 6000:
-        raise VarintError("modes: the dense eigen-solver is limited to 6000 inertial unknowns")
+    sparse = method == "sparse" or (method == "auto" and model.nq > DENSE_TUBE_MODES_LIMIT)
+    if sparse and model.nlam:
+        if model.nq > 6000:
+            raise VarintError("modes: with algebraic unknowns (quasistatic wall or incompressible fluid) the modes "
+                              "use the dense eigen-solver, limited to 6000 inertial unknowns")
+        sparse = False
+    if sparse:
+        if z is None:
+            z = np.concatenate([model.q_init, model.lam_init])
+        H = sp.csr_matrix(model.hessian(model.config(z)))
+        K = (model.B.T @ H @ model.B).tocsc()
+        return sparse_modes_of(0.5 * (K + K.T), model.mass.copy(), count, vectors)
     M, K = linearization(model, z)
     return modes_of(K, M, count, vectors)
 
