@@ -300,6 +300,11 @@ def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
     J = dict(monitor_panels(run["monitors"]))["change of angular momentum [kg m2/s]"][0][1]
     assert J[0] == 0.0 and np.max(J) < 1e-12  # a free spinning rod: |J_cm - J_cm0| at round-off
     assert len(plot_run(tmp_path / "rod.h5", tmp_path / "png")) == 2
+    from varint.io import summary
+
+    d = summary(tmp_path / "rod.h5")  # what `varint info` prints
+    assert d["angular_momentum_cm_deviation"] < 1e-12 and d["linear_momentum_deviation"] < 1e-12
+    assert d["frame_orthogonality_max"] < 1e-14
 
 
 @pytest.mark.validation

@@ -213,4 +213,9 @@ def summary(path):
         d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)
         d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300)) if "mass" in mon else None
         d["newton_iterations_max"] = int(np.max(mon["newton_iterations"])) if "newton_iterations" in mon else None
+        if "angular_momentum_cm" in mon:  # rods: the momenta (reactions of supports included) and the frames
+            for key in ("linear_momentum", "angular_momentum_cm"):
+                v = mon[key]
+                d[f"{key}_deviation"] = float(np.max(np.linalg.norm(v - v[0], axis=1)))
+            d["frame_orthogonality_max"] = float(np.max(mon["frame_orthogonality"]))
     return d
