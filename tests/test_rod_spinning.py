@@ -369,3 +369,19 @@ def test_modes_of_a_thousand_element_rod():
     model = build_model(rod_scene(nodes=1001, section=sec, ends=("clamped", "free")))
     f = np.array([m["frequency"] for m in rod_modes(model, count=6)])[::2]  # each bending frequency twice (3D)
     assert f == pytest.approx(tim[:3], rel=2e-6)  # lattice error at 1000 elements: ~2.6e-7
+
+
+def test_steady_rotation_of_a_rod_spun_about_no_principal_axis_is_the_nearest_one():
+    """The tumbling example's straight rod (along x) spun about (13, 40, -27): the nearest steady
+    rotation is end over end, the chord turned by asin(13/|W|) = 15.1 degrees into the plane normal
+    to the spin (plain Newton had wandered to the chord along the spin axis, 75 degrees away)."""
+    from pathlib import Path
+
+    from varint.rod_statics import static_equilibrium
+
+    model = build_model(parse_scene((Path(__file__).resolve().parent.parent / "examples" / "tumbling_rod.toml").read_text()))
+    W = model.spin
+    Lam, r, info = static_equilibrium(model, spin=W)
+    chord = r[-1] - r[0]
+    assert abs(np.dot(chord, W)) < 1e-9 * np.linalg.norm(chord) * np.linalg.norm(W)
+    assert info["turned_deg"] == pytest.approx(math.degrees(math.asin(W[0] / np.linalg.norm(W))), abs=0.05)

@@ -19,7 +19,8 @@ from .errors import SolverError
 from .lie import cay, hat
 from .rod import banded_jacobian
 
-__all__ = ["static_equilibrium", "rod_modes", "rotating_frame_kinetics", "check_rotating_base", "lumped_mass"]
+__all__ = ["static_equilibrium", "rod_modes", "rotating_frame_kinetics", "check_rotating_base", "lumped_mass",
+           "turn_to_nearest_principal_axis"]
 
 
 def _potential_gradient(model, Lam, r, load_factor=1.0):
@@ -75,9 +76,12 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
         raise SolverError("static equilibrium: with both rod.ends free the rod can move rigidly, so it has no "
                           "unique static equilibrium; clamp or pin an end (or give rod.initial.angular_velocity "
                           "for a steady rotation)")
+    start = (model.Lam0.copy(), model.r0.copy())
+    if spin is not None and mask[[0, -1], :3].all():
+        start = turn_to_nearest_principal_axis(model, *start, spin)
     n_steps = steps
     while True:
-        Lam, r = model.Lam0.copy(), model.r0.copy()
+        Lam, r = start[0].copy(), start[1].copy()
         ok, iters = True, 0
         for k in range(1, n_steps + 1):
             lf = k / n_steps
@@ -106,8 +110,8 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
         if ok:
             info = {"load_steps": n_steps, "iterations": iters}
             if spin is not None:
-                # a spin about no principal axis has no steady rotation near the given shape: Newton
-                # then turns the rod as a whole to one that has (reported, since it changes the scene)
+                # a spin about no principal axis has no steady rotation near the given shape: the rod
+                # was turned as a whole to one that has (reported, since it changes the scene)
                 c0, c1 = model.r0[-1] - model.r0[0], r[-1] - r[0]
                 cosang = np.dot(c0, c1) / (np.linalg.norm(c0) * np.linalg.norm(c1))
                 info["turned_deg"] = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
@@ -115,6 +119,40 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
         if n_steps >= 256:
             raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
         n_steps *= 2
+
+
+def turn_to_nearest_principal_axis(model, Lam, r, spin):
+    """Turn a free rod rigidly, about its centre of mass, by the smallest rotation that makes ``spin``
+    one of its principal axes of inertia (the lumped masses and section inertias).
+
+    A free body is in steady rotation only about a principal axis; Newton started from a shape
+    spun about no principal axis wanders to *some* steady rotation (the tumbling example's chord
+    ended along the spin axis, 75 degrees away).  Starting from the nearest principal alignment
+    makes the result the steady rotation closest to the given shape.  Among degenerate principal
+    axes (a straight rod's transverse ones) the one nearest to the spin is taken.
+    """
+    m = model.section.rhoA * model.w
+    rc = (m[:, None] * r).sum(0) / m.sum()
+    rho = r - rc
+    inertia = model.section.inertia[None, :] * model.w[:, None]
+    J = (np.sum(m * np.sum(rho * rho, 1)) * np.eye(3) - (m[:, None] * rho).T @ rho
+         + np.einsum("nik,nk,njk->ij", Lam, inertia, Lam))
+    vals, vecs = np.linalg.eigh(J)
+    w = spin / np.linalg.norm(spin)
+    best, target = 0.0, w
+    for lam in vals:  # each eigenspace: project the spin onto it, keep the largest projection
+        V = vecs[:, np.abs(vals - lam) <= 1e-8 * np.max(np.abs(vals))]
+        p = V @ (V.T @ w)
+        n = float(np.linalg.norm(p))
+        if n > best + 1e-12:
+            best, target = n, p / n
+    axis = np.cross(target, w)
+    s, c = np.linalg.norm(axis), float(np.dot(target, w))
+    if s < 1e-15:
+        return Lam, r
+    K = hat(axis / s)
+    Q = np.eye(3) + s * K + (1.0 - c) * K @ K  # Rodrigues: turns target onto the spin axis
+    return Q @ Lam, rc + rho @ Q.T
 
 
 def _retract(Lam, r, z, mask):
