@@ -3,7 +3,8 @@
 Prints the table recorded in docs/validation.md: whirl frequencies of a simply supported Timoshenko
 shaft spinning at 60 rad/s (2.3 x its first critical speed), seen from the spinning frame, against
 the continuum theory (analysis.spinning_shaft_whirl), at 20 / 40 / 80 elements, with the observed
-order; then the forward/backward whirl fitted to a time-domain run.  Run:
+order; then the forward/backward whirl fitted to a time-domain run, and the flap frequency of the
+spun free rod in the time domain against its modes.  Run:
     python scripts/spinning_shaft_report.py
 """
 
@@ -16,7 +17,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from test_rod_spinning import SPIN_RATE, _nearest, shaft_model, time_domain_whirl, whirl  # noqa: E402
+from test_rod_spinning import (SPIN_RATE, _nearest, blade_lattice_flap, blade_time_domain_flap, shaft_model,  # noqa: E402
+                                time_domain_whirl, whirl)
 
 from varint.rod_statics import rod_modes  # noqa: E402
 
@@ -41,6 +43,11 @@ def main():
     for h in (2e-3, 1e-3, 5e-4):
         w1, w2 = time_domain_whirl(h=h)
         print(f"| fitted whirl | {h:g} s | {w1:.4f} ({w1 / wf - 1:+.2e}) | {w2:.4f} ({w2 / wb - 1:+.2e}) |", flush=True)
+    lattice = blade_lattice_flap()
+    print(f"\nspun free rod (end over end, 40 elements): lattice flap mode {lattice:.4f} rad/s")
+    for h in (2e-3, 1e-3):
+        w = blade_time_domain_flap(h)
+        print(f"  time domain, h = {h:g} s: {w:.4f} rad/s ({w / lattice - 1:+.2e})", flush=True)
 
 
 if __name__ == "__main__":
