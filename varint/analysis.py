@@ -100,18 +100,17 @@ def gyroscopic_modes_of(K, G, M, count, vectors=False):
     A[n:, :n] = -K / M[:, None]
     A[n:, n:] = -G / M[:, None]
     lam, X = sla.eig(A)
-    return _one_per_degree_of_freedom(lam, X[:n], max(np.max(np.abs(lam)), 1e-300), count, vectors, complete=True)
+    return _one_per_degree_of_freedom(lam, X[:n], 1e-7 * max(np.max(np.abs(lam)), 1e-300), count, vectors, complete=True)
 
 
-def _one_per_degree_of_freedom(lam, X, big, count, vectors, complete):
+def _one_per_degree_of_freedom(lam, X, tiny, count, vectors, complete):
     """Select one eigenvalue per degree of freedom from a Hamiltonian spectrum (see above).
 
     ``complete``: ``lam`` is the whole spectrum, so half of a cluster of zeros is one per degree of
     freedom; otherwise (a partial, shift-inverted spectrum) every zero found is kept and paired by
-    the order it comes in.
+    the order it comes in.  ``tiny``: magnitudes (and real or imaginary parts) below it are round-off.
     """
-    zero = np.abs(lam) <= 1e-7 * big
-    tiny = 1e-7 * big  # parts below this are round-off (double eigenvalues split by ~sqrt(eps))
+    zero = np.abs(lam) <= tiny
     keep = ~zero & ((lam.imag > tiny) | ((np.abs(lam.imag) <= tiny) & (lam.real > 0)))
     zeros = np.flatnonzero(zero)
     picks = list(np.flatnonzero(keep)) + list(zeros[: (len(zeros) + (0 if complete else 1)) // 2])
@@ -143,7 +142,7 @@ def sparse_modes_of(K, M, count, vectors=False):
     import scipy.sparse.linalg as spla
 
     K = sp.csc_matrix(K)
-    big2 = highest_frequency_estimate(K, M) ** 2
+    big2 = highest_frequency_estimate(K, M) ** 2  # a bound, often well above the true highest w^2
     k = min(count, K.shape[0] - 2)
     try:
         w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM")
@@ -154,7 +153,9 @@ def sparse_modes_of(K, M, count, vectors=False):
     w2, X = w2[order], X[:, order]
     res = []
     for lam in w2:
-        if lam >= -1e-14 * big2:
+        # eigenvalues near the shift come out with small absolute error: a threshold of 1e-9 of the
+        # bound on the frequency (1e-18 on w^2), where the dense solver needs 1e-7
+        if lam >= -1e-18 * big2:
             res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
         else:
             res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
@@ -164,7 +165,8 @@ def sparse_modes_of(K, M, count, vectors=False):
 def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
     """The lowest ``count`` modes of M q'' + G q' + K q = 0 by shift-invert Arnoldi (scipy eigs) on the
     first-order form, shifted by 1e-4 of the estimated highest frequency; classification as in
-    :func:`gyroscopic_modes_of`.  For models too large for the dense solver."""
+    :func:`gyroscopic_modes_of` with round-off below 1e-9 of that (Gershgorin, so generous) estimate.
+    For models too large for the dense solver."""
     import scipy.sparse.linalg as spla
 
     n = len(M)
@@ -177,8 +179,7 @@ def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
     except (spla.ArpackNoConvergence, RuntimeError) as exc:
         raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
                           "ask for fewer modes (-n)") from None
-    res = _one_per_degree_of_freedom(lam, X[:n], big, count, vectors, complete=False)
-    return res
+    return _one_per_degree_of_freedom(lam, X[:n], 1e-9 * big, count, vectors, complete=False)
 
 
 def dispersion_branches(k, c0, rho0, R0, a, beta1, beta2):
