@@ -257,9 +257,10 @@ def test_spinning_free_rod_flap_and_lag_against_the_rotating_beam():
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
         f = np.array([m["frequency"] for m in rod_modes(model, count=16, Lam=Lam, r=r, method="sparse")])
         # seen from the spinning frame: the rigid tilt at W, and the in-plane drift of the free body, a
-        # defective (Jordan) pair at W that a dense eigen-solver resolves only to sqrt(eps |A|): here
-        # 1.2 % / 2.8 % at 40 / 80 elements (independent of the Hessian's difference step: checked)
-        assert np.sum(np.abs(f / W - 1) < 1e-6) == 1 and np.sum(np.abs(f / W - 1) < 5e-2) == 3, f[:8]
+        # defective (Jordan) pair at W that eigen-solvers resolve only to ~sqrt(eps |A|) (dense: 1.2 % /
+        # 2.8 % at 40 / 80 elements, independent of the Hessian's difference step: checked); the pair
+        # also blurs the tilt next to it (to ~3e-6 here)
+        assert np.sum(np.abs(f / W - 1) < 1e-4) >= 1 and np.sum(np.abs(f / W - 1) < 5e-2) == 3, f[:8]
         errs.append(np.concatenate([_nearest(f, flap) / flap - 1, _nearest(f, lag) / lag - 1]))
     errs = np.abs(errs)
     assert np.max(errs[-1]) < 1e-3, errs  # measured 4.9e-4 .. 6.9e-4 at 80 elements

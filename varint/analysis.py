@@ -145,7 +145,8 @@ def sparse_modes_of(K, M, count, vectors=False):
     big2 = highest_frequency_estimate(K, M) ** 2  # a bound, often well above the true highest w^2
     k = min(count, K.shape[0] - 2)
     try:
-        w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM")
+        # a fixed start vector: ARPACK's default is random, and results must not change between runs
+        w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM", v0=np.ones(K.shape[0]))
     except (spla.ArpackNoConvergence, RuntimeError) as exc:
         raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
                           "ask for fewer modes (-n)") from None
@@ -175,7 +176,7 @@ def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
     big = highest_frequency_estimate(K, M)
     k = min(2 * count + 4, 2 * n - 2)
     try:
-        lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM")
+        lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM", v0=np.ones(2 * n))
     except (spla.ArpackNoConvergence, RuntimeError) as exc:
         raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
                           "ask for fewer modes (-n)") from None
