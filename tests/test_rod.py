@@ -187,6 +187,20 @@ def test_static_of_a_free_rod_is_refused_in_one_line(tmp_path, capsys):
     assert len(err) == 1 and "both rod.ends free" in err[0], err
 
 
+def test_planar_free_rod_is_free():
+    """The planar model masks its out-of-plane directions everywhere, so "free" must come from the ends,
+    not the mask: a planar free rod translating gets its modes (it was refused as "supported") and a
+    floating origin, like the 3D one."""
+    planar = build_model(rod_scene(nodes=11, dimension=2, initial={"velocity": [1.0, 0.5, 0.0]}))
+    spatial = build_model(rod_scene(nodes=11, dimension=3, initial={"velocity": [1.0, 0.5, 0.0]}))
+    assert planar.free and spatial.free and RodSimulation(planar).floating_origin
+    f2 = [m["frequency"] for m in rod_modes(planar, count=8)]
+    f3 = [m["frequency"] for m in rod_modes(spatial, count=30)]
+    elastic = [f for f in f2 if f > 1.0]
+    assert elastic and all(min(abs(np.array(f3) / f - 1)) < 1e-9 for f in elastic)
+    assert not build_model(rod_scene(nodes=11, dimension=2, ends=("pinned", "free"))).free
+
+
 # -- the PyElastica cantilever section (ANCHORS.md): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
 
 def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):

@@ -140,6 +140,9 @@ class RodModel:
             if kind == "clamped":
                 mask[node, 3:] = False
         self.mask = mask
+        #: both ends free: the rod can translate and turn as a whole (the mask cannot say it for the
+        #: planar model, whose out-of-plane directions are masked everywhere)
+        self.free = rod.ends.s0 == "free" and rod.ends.sL == "free"
         self.nz = int(mask.sum())
         self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
         self.w = np.full(self.N + 1, self.ds)
@@ -412,7 +415,7 @@ class RodSimulation:
         # origin (moved with node 0 each step, exactly, on a binary grid) so that strains and forces
         # are computed from O(L) numbers: with absolute coordinates their round-off grows like eps |r|
         # and a rod drifting 3.7 km lost its angular momentum to 1e-8 (docs/validation.md).
-        self.floating_origin = bool(model.mask[[0, -1], :3].all())
+        self.floating_origin = model.free
         if state is not None and len(state.q) == 12 * (N + 1):  # a checkpoint written before the origin existed
             state = State(state.n, state.t, np.concatenate([state.q, np.zeros(3)]), state.p, state.lam, state.v,
                           state.q_prev)

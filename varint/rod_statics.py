@@ -72,12 +72,12 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     if spin is not None:
         spin = np.asarray(spin, dtype=float)
         check_rotating_base(model, spin)
-    elif mask[[0, -1], :3].all():
+    elif model.free:
         raise SolverError("static equilibrium: with both rod.ends free the rod can move rigidly, so it has no "
                           "unique static equilibrium; clamp or pin an end (or give rod.initial.angular_velocity "
                           "for a steady rotation)")
     start = (model.Lam0.copy(), model.r0.copy())
-    if spin is not None and mask[[0, -1], :3].all():
+    if spin is not None and model.free:
         start = turn_to_nearest_principal_axis(model, *start, spin)
     n_steps = steps
     while True:
@@ -226,7 +226,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds)
     K = (0.5 * (K + K.T)).tocsc()
     M = lumped_mass(model)[mask]
-    if not mask[[0, -1], :3].all() and np.any(model.scene.rod.initial.velocity or 0.0):
+    if not model.free and np.any(model.velocity):
         raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
                           "rod.initial.velocity must be zero")
     if not np.any(Omega):
