@@ -433,12 +433,13 @@ def test_accumulate_kernel_equals_numpy_reference(dimension):
     from varint.rod import _k_accumulate
 
     model = build_model(rod_scene(nodes=8, dimension=dimension))
-    sig, dr, plan = model._cs_plan()
+    _, _, colour, direction = model._cs_plan()
+    B = len(colour)
     rng = np.random.default_rng(5)
-    elem = rng.standard_normal((len(plan), model.N)) + 1j * rng.standard_normal((len(plan), model.N))
-    node = rng.standard_normal((len(plan), model.N + 1)) + 1j * rng.standard_normal((len(plan), model.N + 1))
+    elem = rng.standard_normal((B, model.N)) + 1j * rng.standard_normal((B, model.N))
+    node = rng.standard_normal((B, model.N + 1)) + 1j * rng.standard_normal((B, model.N + 1))
     out = np.zeros((model.N + 1, 6))
-    _k_accumulate(elem, node, model._plan_arrays[0], model._plan_arrays[1], 1e30, out)
+    _k_accumulate(elem, node, colour, direction, 1e30, out)
     assert np.allclose(out, model.accumulate_reference(elem, node), rtol=1e-14, atol=0)
 
 

@@ -99,6 +99,13 @@ def cmd_plot(args):
     return 0
 
 
+def _turned(info):
+    """How far a steady-rotation search turned the rod, in words ("" when not noticeably)."""
+    deg = info.get("turned_deg", 0.0)
+    return (f"the rod's end-to-end chord turned by {deg:.1f} deg from the scene's shape (spin about no principal "
+            "axis of it)") if deg > 1.0 else ""
+
+
 def cmd_modes(args):
     from .analysis import modes
     from .model import build_model
@@ -116,9 +123,8 @@ def cmd_modes(args):
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
             Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
             res = rod_modes(model, count=args.count, Lam=Lam, r=r)
-            if info.get("turned_deg", 0.0) > 1.0:
-                print(f"# the steady rotation found has the rod's end-to-end chord turned by {info['turned_deg']:.1f} deg "
-                      "from the scene's shape (spin about no principal axis of it)", file=sys.stderr)
+            if _turned(info):
+                print(f"# the steady rotation found has {_turned(info)}", file=sys.stderr)
         else:
             res = rod_modes(model, count=args.count)
         if np.any(spin):
@@ -177,8 +183,8 @@ def cmd_static(args):
         w.close()
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
-    if info.get("turned_deg", 0.0) > 1.0:
-        what += f", the rod's chord turned by {info['turned_deg']:.1f} deg from the scene's shape (spin about no principal axis of it)"
+    if _turned(info):
+        what += f", with {_turned(info)}"
     print(f"wrote {out}: {what} in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0

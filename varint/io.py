@@ -84,9 +84,7 @@ class RunWriter:
             raise OutputError(f"{self.path}: was started from a different scene; resume with the same scene file")
 
     def _trim(self):
-        cp = self.f["checkpoint"]
-        slot = cp.attrs.get("slot", "")
-        k = int((cp[slot] if slot else cp).attrs["records"])
+        k = int(_active_checkpoint(self.f).attrs["records"])
         for d in self._datasets():
             if d.shape[0] != k:
                 d.resize(k, axis=0)
@@ -161,10 +159,15 @@ def _oserr(exc):
     return str(exc).split("(")[0].strip() or exc.__class__.__name__
 
 
-def read_checkpoint(f):
+def _active_checkpoint(f):
+    """The checkpoint slot in use; files written before the two slots kept the state in /checkpoint itself."""
     cp = f["checkpoint"]
     slot = cp.attrs.get("slot", "")
-    src = cp[slot] if slot else cp  # files written before the two slots kept the state in the group itself
+    return cp[slot] if slot else cp
+
+
+def read_checkpoint(f):
+    src = _active_checkpoint(f)
     if "q" not in src:
         raise OutputError("the run file has no checkpoint yet; start the run again without --resume")
     get = lambda n: src[n][...] if n in src else None  # noqa: E731

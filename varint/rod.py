@@ -147,6 +147,9 @@ class RodModel:
         self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
         self.w = np.full(self.N + 1, self.ds)
         self.w[0] = self.w[-1] = 0.5 * self.ds
+        #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
+        self.node_mass = self.section.rhoA * self.w
+        self.node_inertia = self.section.inertia[None, :] * self.w[:, None]
         self._initial(rod.initial or {})
         self.steady_rotation = None
         if (rod.initial or {}).get("shape") == "steady_rotation":
@@ -173,17 +176,18 @@ class RodModel:
         self.spin = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
         self.set_configuration(Lam, r)
 
+    def centre_of_mass(self, r):
+        return (self.node_mass[:, None] * r).sum(0) / self.node_mass.sum()
+
     def set_configuration(self, Lam, r):
         """Start from (Lam, r), moving rigidly with rod.initial velocity and angular velocity about its
         centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``)."""
-        m = self.section.rhoA * self.w
-        rc = (m[:, None] * r).sum(0) / m.sum()
-        v = self.velocity + np.cross(self.spin, r - rc)
+        v = self.velocity + np.cross(self.spin, r - self.centre_of_mass(r))
         omega = np.einsum("nji,j->ni", Lam, self.spin)  # body angular velocity Lambda^T Omega
         self.Lam0, self.r0 = Lam, r
         self.v0, self.omega0 = v, omega
-        self.p0 = m[:, None] * v
-        self.Pi0 = (self.section.inertia[None, :] * self.w[:, None]) * omega
+        self.p0 = self.node_mass[:, None] * v
+        self.Pi0 = self.node_inertia * omega
 
     # -- discrete Lagrangian pieces ---------------------------------------------
 
@@ -273,29 +277,29 @@ class RodModel:
         return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
 
     def _cs_plan(self):
-        """Complex-step perturbations (built once): all even, then all odd nodes, one direction each."""
+        """Complex-step perturbations (built once): all even, then all odd nodes, one direction each.
+
+        Returns ``(sig, dr, colour, direction)``: batch b perturbs direction ``direction[b]`` (0-2:
+        dr, 3-5: sigma) of the nodes of parity ``colour[b]``.
+        """
         if getattr(self, "_plan", None) is None:
             N = self.N
             dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
-            nb = 2 * len(dirs)
-            sig = np.zeros((nb, N + 1, 3), dtype=complex)
-            dr = np.zeros((nb, N + 1, 3), dtype=complex)
-            plan = []
-            for c in (0, 1):
-                for d in dirs:
-                    b = len(plan)
-                    if d < 3:
-                        dr[b, c::2, d] = 1j * EPS_CS
-                    else:
-                        sig[b, c::2, d - 3] = 1j * EPS_CS
-                    plan.append((c, d))
-            self._plan = (sig, dr, plan)
-            self._plan_arrays = (np.array([c for c, _ in plan], dtype=np.int64), np.array([d for _, d in plan], dtype=np.int64))
+            colour = np.repeat([0, 1], len(dirs))
+            direction = np.tile(dirs, 2)
+            sig = np.zeros((len(colour), N + 1, 3), dtype=complex)
+            dr = np.zeros((len(colour), N + 1, 3), dtype=complex)
+            for b, (c, d) in enumerate(zip(colour, direction)):
+                if d < 3:
+                    dr[b, c::2, d] = 1j * EPS_CS
+                else:
+                    sig[b, c::2, d - 3] = 1j * EPS_CS
+            self._plan = (sig, dr, colour, direction)
         return self._plan
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
-        sig, dr, plan = self._cs_plan()
+        sig, dr, colour, direction = self._cs_plan()
         try:
             elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
         except ZeroDivisionError:
@@ -303,19 +307,19 @@ class RodModel:
             # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
             return np.full((self.N + 1, 6), np.nan)
         out = np.zeros((self.N + 1, 6))
-        _k_accumulate(elem, node, self._plan_arrays[0], self._plan_arrays[1], 1.0 / EPS_CS, out)
+        _k_accumulate(elem, node, colour, direction, 1.0 / EPS_CS, out)
         return out
 
     def accumulate_reference(self, elem, node):
         """NumPy twin of ``_k_accumulate`` (tested equal): each element's derivative goes to the one
         node of the perturbed colour it touches, plus the node pieces of that colour."""
         N = self.N
-        _, _, plan = self._cs_plan()
+        _, _, colour, direction = self._cs_plan()
         de, dn = elem.imag / EPS_CS, node.imag / EPS_CS
         out = np.zeros((N + 1, 6))
         e = np.arange(N)
         owners = (np.where(e % 2 == 0, e, e + 1), np.where(e % 2 == 1, e, e + 1))
-        for b, (c, d) in enumerate(plan):
+        for b, (c, d) in enumerate(zip(colour, direction)):
             out[:, d] += np.bincount(owners[c], weights=de[b], minlength=N + 1)
             out[c::2, d] += dn[b, c::2]
         return out
@@ -521,7 +525,8 @@ class RodSimulation:
         if self.floating_origin:
             shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
             r_1, origin = r_1 - shift, origin + shift
-        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1, origin), p1, np.empty(0), v, st.q.copy())
+        # (no q_prev: the rod's energy monitor is the level energy, which needs no previous level)
+        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1, origin), p1, np.empty(0), v)
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = res.iterations, res.n_residual, res.n_jacobian
         s.total_iterations += res.iterations
@@ -542,16 +547,14 @@ class RodSimulation:
         for k, v in pot.items():
             out[f"energy_{k}"] = v
         out["energy"] = out["kinetic_energy"] + sum(pot.values())
-        out["mass"] = float(np.sum(m.section.rhoA * m.w))
+        out["mass"] = float(np.sum(m.node_mass))
         out["linear_momentum"] = p.sum(0)
         # about the (fixed) origin: origin x P + sum (r - origin) x p + Lambda Pi, each part from O(L) numbers
         spin = np.einsum("nij,nj->i", Lam, Pi)
         out["angular_momentum"] = np.cross(origin, p.sum(0)) + np.cross(r, p).sum(0) + spin
         # about the centre of mass: the well-conditioned one for a rod far from the origin (there the
         # difference angular_momentum - r_c x P cancels large numbers)
-        mass = m.section.rhoA * m.w
-        rc = (mass[:, None] * r).sum(0) / mass.sum()
-        out["angular_momentum_cm"] = np.cross(r - rc, p).sum(0) + spin
+        out["angular_momentum_cm"] = np.cross(r - m.centre_of_mass(r), p).sum(0) + spin
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
         out["newton_iterations"] = self.stats.iterations
         return out

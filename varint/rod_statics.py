@@ -67,8 +67,7 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
 
     mask = model.mask
     scale = np.where(np.nonzero(mask.ravel())[0] % 6 < 3, model.ds, 1.0)
-    m = model.section.rhoA * model.w
-    centre = (m[:, None] * model.r0).sum(0) / m.sum()
+    centre = model.centre_of_mass(model.r0)
     if spin is not None:
         spin = np.asarray(spin, dtype=float)
         check_rotating_base(model, spin)
@@ -131,12 +130,11 @@ def turn_to_nearest_principal_axis(model, Lam, r, spin):
     makes the result the steady rotation closest to the given shape.  Among degenerate principal
     axes (a straight rod's transverse ones) the one nearest to the spin is taken.
     """
-    m = model.section.rhoA * model.w
-    rc = (m[:, None] * r).sum(0) / m.sum()
+    m = model.node_mass
+    rc = model.centre_of_mass(r)
     rho = r - rc
-    inertia = model.section.inertia[None, :] * model.w[:, None]
     J = (np.sum(m * np.sum(rho * rho, 1)) * np.eye(3) - (m[:, None] * rho).T @ rho
-         + np.einsum("nik,nk,njk->ij", Lam, inertia, Lam))
+         + np.einsum("nik,nk,njk->ij", Lam, model.node_inertia, Lam))
     vals, vecs = np.linalg.eigh(J)
     w = spin / np.linalg.norm(spin)
     best, target = 0.0, w
@@ -174,10 +172,9 @@ def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
     Returns per-node blocks ``b`` (N+1, 6), ``C`` and ``H`` (N+1, 6, 6); M is :func:`lumped_mass`.
     ``centre``: a point of the spin axis (default: the centre of mass of ``r``).
     """
-    m = model.section.rhoA * model.w
-    inertia = model.section.inertia[None, :] * model.w[:, None]
+    m, inertia = model.node_mass, model.node_inertia
     Omega = np.asarray(Omega, dtype=float)
-    rc = (m[:, None] * r).sum(0) / m.sum() if centre is None else np.asarray(centre, dtype=float)
+    rc = model.centre_of_mass(r) if centre is None else np.asarray(centre, dtype=float)
     W = hat(Omega)
     n = model.N + 1
     b = np.zeros((n, 6))
@@ -222,16 +219,18 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     r = model.r0 if r is None else r
     if Omega is None:
         Omega = model.spin
+    # refusals first: they need no stiffness matrix
+    if not model.free and np.any(model.velocity):
+        raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
+                          "rod.initial.velocity must be zero")
+    if np.any(Omega):
+        check_rotating_base(model, Omega)
     sparse = method == "sparse" or (method == "auto" and model.nz > DENSE_MODES_LIMIT)
     K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds)
     K = (0.5 * (K + K.T)).tocsc()
     M = lumped_mass(model)[mask]
-    if not model.free and np.any(model.velocity):
-        raise SolverError("modes: a rod with a pinned or clamped end has no steady translation: "
-                          "rod.initial.velocity must be zero")
     if not np.any(Omega):
         return sparse_modes_of(K, M, count, vectors) if sparse else modes_of(K.toarray(), M, count, vectors)
-    check_rotating_base(model, Omega)
     b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
     f = _potential_gradient(model, Lam, r) + b
     # force scale: the centrifugal loads, or the elastic force of a unit strain (diag K x unit displacement)
@@ -258,8 +257,7 @@ def check_rotating_base(model, Omega):
     if np.any(model.force) or np.any(model.torque) or np.any(np.cross(model.g, Omega)):
         raise SolverError("modes: a spinning rod with rod.load or gravity across the spin axis is not in a steady "
                           "rotation (the loads turn relative to it)")
-    m = model.section.rhoA * model.w
-    rc = (m[:, None] * model.r0).sum(0) / m.sum()
+    rc = model.centre_of_mass(model.r0)
     ends = model.scene.rod.ends
     for node, key in ((0, "s0"), (model.N, "sL")):
         kind = getattr(ends, key)
@@ -271,5 +269,4 @@ def check_rotating_base(model, Omega):
 
 def lumped_mass(model):
     """Diagonal of the kinetic metric per node and direction (rho A w_j for dr, I w_j for sigma), (N+1, 6)."""
-    return np.concatenate([np.repeat((model.section.rhoA * model.w)[:, None], 3, 1),
-                           model.section.inertia[None, :] * model.w[:, None]], axis=1)
+    return np.concatenate([np.repeat(model.node_mass[:, None], 3, 1), model.node_inertia], axis=1)
