@@ -73,13 +73,25 @@ def modes_of(K, M, count, vectors=False):
     ~2e-13).  Eigenvalue order lists instabilities first, then frequencies increasing.
     """
     w2, X = sla.eigh(K, np.diag(M))
-    res = []
-    for lam in w2[:count]:
-        if lam >= -1e-14 * max(abs(w2[-1]), abs(w2[0]), 1e-300):
-            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
-        else:
-            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
+    res = _modes_from_w2(w2[:count], 1e-14 * max(abs(w2[-1]), abs(w2[0]), 1e-300))
     return (res, X[:, :count]) if vectors else res
+
+
+def _modes_from_w2(w2, floor):
+    """w^2 -> {"frequency", "growth_rate"}: a negative w^2 beyond the round-off ``floor`` is a growth rate."""
+    return [{"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0} if lam >= -floor
+            else {"frequency": 0.0, "growth_rate": math.sqrt(-lam)} for lam in w2]
+
+
+def _arpack(solver, *args, **kw):
+    """Call a scipy ARPACK solver; its failures become one-line errors."""
+    import scipy.sparse.linalg as spla
+
+    try:
+        return solver(*args, **kw)
+    except (spla.ArpackNoConvergence, RuntimeError) as exc:
+        raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
+                          "ask for fewer modes (-n)") from None
 
 
 def gyroscopic_modes_of(K, G, M, count, vectors=False):
@@ -144,22 +156,13 @@ def sparse_modes_of(K, M, count, vectors=False):
     K = sp.csc_matrix(K)
     big2 = highest_frequency_estimate(K, M) ** 2  # a bound, often well above the true highest w^2
     k = min(count, K.shape[0] - 2)
-    try:
-        # a fixed start vector: ARPACK's default is random, and results must not change between runs
-        w2, X = spla.eigsh(K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM", v0=np.ones(K.shape[0]))
-    except (spla.ArpackNoConvergence, RuntimeError) as exc:
-        raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
-                          "ask for fewer modes (-n)") from None
+    # a fixed start vector: ARPACK's default is random, and results must not change between runs
+    w2, X = _arpack(spla.eigsh, K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM", v0=np.ones(K.shape[0]))
     order = np.argsort(w2)
     w2, X = w2[order], X[:, order]
-    res = []
-    for lam in w2:
-        # eigenvalues near the shift come out with small absolute error: a threshold of 1e-9 of the
-        # bound on the frequency (1e-18 on w^2), where the dense solver needs 1e-7
-        if lam >= -1e-18 * big2:
-            res.append({"frequency": math.sqrt(max(lam, 0.0)), "growth_rate": 0.0})
-        else:
-            res.append({"frequency": 0.0, "growth_rate": math.sqrt(-lam)})
+    # eigenvalues near the shift come out with small absolute error: a threshold of 1e-9 of the
+    # bound on the frequency (1e-18 on w^2), where the dense solver needs 1e-7
+    res = _modes_from_w2(w2, 1e-18 * big2)
     return (res, X) if vectors else res
 
 
@@ -175,11 +178,7 @@ def sparse_gyroscopic_modes_of(K, G, M, count, vectors=False):
     A = sp.bmat([[None, sp.identity(n)], [-(Minv @ sp.csr_matrix(K)), -(Minv @ sp.csr_matrix(G))]]).tocsc()
     big = highest_frequency_estimate(K, M)
     k = min(2 * count + 4, 2 * n - 2)
-    try:
-        lam, X = spla.eigs(A, k=k, sigma=1e-4 * big, which="LM", v0=np.ones(2 * n))
-    except (spla.ArpackNoConvergence, RuntimeError) as exc:
-        raise VarintError(f"modes: the sparse eigen-solver (ARPACK) failed ({str(exc).splitlines()[0]}); "
-                          "ask for fewer modes (-n)") from None
+    lam, X = _arpack(spla.eigs, A, k=k, sigma=1e-4 * big, which="LM", v0=np.ones(2 * n))
     return _one_per_degree_of_freedom(lam, X[:n], 1e-9 * big, count, vectors, complete=False)
 
 
