@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from helpers import to_toml, zero_crossing_frequency  # noqa: E402
+from test_rod import solid_section  # noqa: E402
 
 from varint import build_model, parse_scene  # noqa: E402
 from varint.analysis import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
@@ -53,17 +54,15 @@ def reference(E):
 
 
 def varint_run(E, h, periods, w_ref):
-    G = E / 1.5
-    sec = dict(mass_per_length=RHO * A, rotary_inertia=RHO * I, bending_stiffness=E * I, torsional_stiffness=G * 2 * I,
-               axial_stiffness=E * A, shear_stiffness=4.0 / 3.0 * G * A)
+    sec = solid_section(E, RAD, RHO)  # the same section as the tests' PyElastica benchmark rod
     d = {"title": "cantilever", "tube": {"length": L, "nodes": N_EL + 1, "radius": RAD},
          "rod": dict(sec, dimension=2, measure="reference", ends={"s0": "clamped", "sL": "free"}),
          "time": {"step": h, "end": 1.0}}
     model = build_model(parse_scene(to_toml(d)))
     s = np.linspace(0.0, L, N_EL + 1)
     y, dy = mode_shape(s)
-    model.r0 = np.stack([s, y, np.zeros_like(s)], axis=1)
-    model.Lam0 = cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1))
+    model.set_configuration(cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1)),
+                            np.stack([s, y, np.zeros_like(s)], axis=1))
     sim = RodSimulation(model)
     n = int(round(periods * 2 * math.pi / w_ref / h))
     t, tip, E_ = np.empty(n), np.empty(n), np.empty(n)
