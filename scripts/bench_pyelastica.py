@@ -32,7 +32,6 @@ from varint.lie import cay  # noqa: E402
 from varint.rod import RodSimulation  # noqa: E402
 
 L, RAD, RHO, N_EL, TIP = 1.0, 0.01, 1000.0, 100, 0.01
-A, I = math.pi * RAD ** 2, math.pi * RAD ** 4 / 4
 
 
 def mode_shape(s):
@@ -45,9 +44,9 @@ def mode_shape(s):
 
 
 def reference(E):
-    G = E / 1.5
-    w = timoshenko_cantilever(E * I, 4.0 / 3.0 * G * A, RHO * A, RHO * I, L, count=1)[0]
-    return w
+    sec = solid_section(E, RAD, RHO)
+    return timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"],
+                                 sec["rotary_inertia"], L, count=1)[0]
 
 
 # ----------------------------------------------------------------------------- varint
