@@ -1,6 +1,6 @@
 """varint's Cayley-map midpoint rod against PyElastica's PositionVerlet, side by side in one run.
 
-Case (ANCHORS.md): cantilever L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3, E = 1e6 and 1e7 Pa,
+Case (PyElastica's cantilever benchmark section): cantilever L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3, E = 1e6 and 1e7 Pa,
 G = E/1.5, 100 elements, released from the first Euler-Bernoulli mode shape with a 1 cm tip
 deflection, no damping.  Reported per tool and step size: wall time for 10 first-mode periods, the
 error of the tip trajectory against the analytic first-mode motion 0.01 cos(omega_T t) (omega_T: the

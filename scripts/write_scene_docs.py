@@ -5,11 +5,11 @@ Run: python scripts/write_scene_docs.py   (tests/test_docs.py checks the file is
 
 from pathlib import Path
 
-from varint.scene import NOT_YET, REQUIRED, SCHEMA
+from varint.scene import NOT_YET, REQUIRED, SCHEMA, _num
 
 HEADER = """# Scene files
 
-A scene is a TOML file in SI units. Its sections switch effects on (DESIGN §4): a scene without
+A scene is a TOML file in SI units. Its sections switch effects on (docs/theory.md): a scene without
 `[wall]` has a rigid wall and no radius unknowns; without `[fluid]` it has no labels. Unknown keys
 are errors (the nearest valid key is suggested); every problem is reported as one line
 `key.path: what is wrong`. `varint check SCENE.toml` prints the resolved parameters, the effects,
@@ -45,7 +45,7 @@ def render():
             if k.low is not None:
                 rng += f" {'>' if k.low_open else '≥'} {k.low:g}"
             if k.high is not None:
-                rng += f", ≤ {k.high:g}"
+                rng += f", ≤ {_num(k.high)}"
             out.append(f"| `{k.name}` | {kind}{rng} | {k.unit} | {default} | {k.doc} |")
     out.append("\n## Sections not available in this version\n")
     for name, why in NOT_YET.items():

@@ -1,4 +1,4 @@
-"""Effects assemble only their own unknowns and terms (DESIGN §4)."""
+"""Effects assemble only their own unknowns and terms (docs/theory.md: each effect adds its own unknowns and terms)."""
 
 import numpy as np
 

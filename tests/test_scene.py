@@ -54,6 +54,7 @@ BAD = [
     ("rod-unknown-initial-key", [("wall", _DEL), ("fluid", _DEL), ("rod", {"youngs_modulus": 1e6, "thickness": 0.01, "density": 1e3, "initial": {"spin": [0.0, 0.0, 1.0]}})], "rod.initial.spin: unknown key"),
     ("shock-not-yet", [("shock_capturing", {})], "shock_capturing: shock capturing is not available"),
     ("unknown-fluid-model", [("fluid.model", "ideal_gas")], "fluid.model: unknown value 'ideal_gas'"),
+    ("too-many-parcels", [("fluid.parcels", 3_000_000)], "fluid.parcels: must be <= 2000000, got 3000000"),
     ("gamma-below-one", [("fluid.gamma", 0.9)], "fluid.gamma: must be >= 1"),
     ("gamma-one-gas", [("fluid.gamma", 1.0)], "fluid.gamma: must be > 1 for an ideal gas"),
     ("negative-density", [("fluid.density", -1.0)], "fluid.density: must be > 0"),

@@ -1,4 +1,4 @@
-"""SO(3) utilities for the Cayley-map integrators (DESIGN §2).
+"""SO(3) utilities for the Cayley-map integrators (docs/theory.md §9).
 
 Readable NumPy references first, batched numba kernels at the bottom; tests check
 the group identities, the derivatives against finite differences and that the

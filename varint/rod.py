@@ -1,6 +1,6 @@
 """The geometrically exact rod on the SE(3) lattice: a Cayley-map Lie-group variational integrator.
 
-Lattice (DESIGN §2): nodes j = 0..N carry positions r_j and frames Lambda_j in SO(3).  A time step
+Lattice (docs/theory.md §9): nodes j = 0..N carry positions r_j and frames Lambda_j in SO(3).  A time step
 n -> n+1 is parametrised by xi_j = cay^-1(Lambda_j^n^T Lambda_j^{n+1}) (= h omega_j) and r_j^{n+1}.
 
 Discrete Lagrangian of a step (docs/theory.md §9), a sum over elements e = (j, j+1):
