@@ -15,6 +15,14 @@ Unknowns are addressed in *configuration index space*: label ``k`` is
 index ``k`` and node ``j`` is ``n_labels + j``.  Closed tubes have nodes
 ``0..N``; periodic tubes have ``N`` distinct nodes and node ``N`` is node 0.
 
+Labels must be strictly increasing; a closed tube's labels lie in ``[0, L]`` and a
+periodic tube's span one period, ``s_M - s_0 = L``.  :func:`label_problem` names the
+first violation; the wrappers check it before calling a kernel and return NaN (no
+kernel call) for a configuration outside that domain, so that a Newton iterate which
+folds the lattice gives a non-finite residual instead of garbage.  The kernels guard
+every index themselves as well (a parcel whose labels are out of order or not finite
+gets NaN), so no input can make them read or write outside their arrays.
+
 The numba kernels are at the bottom; :func:`parcel_volumes_reference` is a
 plain quadrature used by the tests to check them.
 """
@@ -26,7 +34,12 @@ import math
 import numpy as np
 from numba import njit
 
+EPS = np.finfo(float).eps
+#: a label farther than this many elements from the origin cannot be located in int64 arithmetic
+_MAX_ELEMENTS = 2.0 ** 52
+
 __all__ = [
+    "label_problem",
     "parcel_volumes",
     "parcel_derivatives",
     "parcel_volumes_reference",
@@ -35,10 +48,55 @@ __all__ = [
 ]
 
 
+def label_problem(s, nR, ds, periodic, tube=True):
+    """The first way labels ``s`` leave the domain of a tube's parcels, or None.
+
+    Returns ``(k, text)``: ``"label k is not finite"``, ``"label k left the tube ..."`` (closed
+    tubes: outside ``[0, L]`` beyond round-off), ``"labels out of order at parcel k ..."``
+    (``s_{k+1} <= s_k``) or, for a periodic tube, a span ``s_M - s_0`` other than the period.
+    ``nR`` is the number of nodal radii (``L = (nR - 1) ds`` closed, ``nR ds`` periodic).
+    With ``tube`` false only what the kernels need is checked (finite, increasing labels):
+    the volume of a parcel beyond a closed end is still defined (the end element extrapolated),
+    which finite differences at the end labels use.
+    """
+    s = np.asarray(s, dtype=np.float64)
+    if s.ndim != 1 or len(s) < 2:
+        return 0, f"need at least two labels, got shape {s.shape}"
+    bad = ~np.isfinite(s)
+    if bad.any():
+        k = int(np.argmax(bad))
+        return k, f"label {k} is not finite"
+    L = ds * (nR if periodic else nR - 1)
+    if tube and not periodic:
+        tol = 8 * EPS * L
+        out = (s < -tol) | (s > L + tol)
+        if out.any():
+            k = int(np.argmax(out))
+            return k, f"label {k} left the tube (s = {s[k]:.6g} m, tube [0, {L:.6g}] m)"
+    d = np.diff(s)
+    fold = ~(d > 0)
+    if fold.any():
+        k = int(np.argmax(fold))
+        return k, f"labels out of order at parcel {k} (s_{k} = {s[k]:.9g} m, s_{k + 1} = {s[k + 1]:.9g} m)"
+    if tube and periodic:
+        span = s[-1] - s[0]
+        if abs(span - L) > 16 * EPS * max(L, abs(s[0]), abs(s[-1])):
+            return len(s) - 1, f"labels span {span:.17g} m, not the period {L:.17g} m"
+    return None
+
+
+def _valid(s, R, ds, periodic):
+    return label_problem(s, len(R), ds, periodic, tube=False) is None
+
+
 def parcel_volumes(s, R, ds, periodic):
-    """Volumes ``V`` (M,) of the parcels between labels ``s`` (M+1,)."""
+    """Volumes ``V`` (M,) of the parcels between labels ``s`` (M+1,); NaN if the labels are not finite and increasing."""
+    s = np.ascontiguousarray(s, dtype=np.float64)
     V = np.empty(len(s) - 1)
-    _volumes(np.ascontiguousarray(s, dtype=np.float64), np.ascontiguousarray(R, dtype=np.float64), ds, periodic, V)
+    if not _valid(s, R, ds, periodic):
+        V[:] = np.nan
+        return V
+    _volumes(s, np.ascontiguousarray(R, dtype=np.float64), ds, periodic, V)
     return V
 
 
@@ -50,11 +108,29 @@ def parcel_derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     of ``sum_k c2_k grad V_k grad V_k^T + c1_k hess V_k`` and ``jac`` a COO
     triple of ``dV_k/dq`` (row = parcel k), both in configuration index space.
     With ``want_R`` false the nodal radii are treated as data.
+
+    Labels that are not finite and increasing (:func:`label_problem` with ``tube=False``) give NaN gradients and NaN on the
+    labels' diagonal of ``hess`` and ``jac``, without calling the kernel.
     """
     s = np.ascontiguousarray(s, dtype=np.float64)
     R = np.ascontiguousarray(R, dtype=np.float64)
-    return _derivatives(s, R, ds, periodic, np.ascontiguousarray(c1, dtype=np.float64),
-                        np.ascontiguousarray(c2, dtype=np.float64), want_R, want_hessian)
+    c1 = np.ascontiguousarray(c1, dtype=np.float64)
+    c2 = np.ascontiguousarray(c2, dtype=np.float64)
+    M = len(s) - 1
+    if c1.shape != (M,) or c2.shape != (M,):
+        raise ValueError(f"parcel_derivatives: c1 and c2 need shape ({M},), got {c1.shape} and {c2.shape}")
+    if not _valid(s, R, ds, periodic):
+        nan = np.full(len(s), np.nan)
+        lab = np.arange(len(s), dtype=np.int64)
+        par = np.arange(M, dtype=np.int64)
+        if not want_hessian:
+            return nan, np.full(len(R), np.nan), _empty_coo(), _empty_coo()
+        return nan, np.full(len(R), np.nan), (lab, lab, nan.copy()), (par, par, np.full(M, np.nan))
+    return _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian)
+
+
+def _empty_coo():
+    return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
 
 
 def tube_volume(R, ds, periodic):
@@ -113,12 +189,39 @@ def parcel_volumes_reference(s, R, ds, periodic):
 
 @njit(cache=True, inline="always")
 def _locate(x, ds, nR, periodic):
-    """Element index (unwrapped for periodic tubes) and local coordinate t of x."""
-    if periodic:
-        e = math.floor(x / ds)
-    else:
-        e = min(max(math.floor(x / ds), 0), nR - 2)
-    return e, x / ds - e
+    """Element index (unwrapped for periodic tubes) and local coordinate t of x.
+
+    A closed tube's index is clamped to its elements (labels beyond the ends extrapolate the
+    end element); a non-finite or astronomically far x gets element 0 (its parcel is flagged
+    invalid by :func:`_parcel_ok`).
+    """
+    u = x / ds
+    if not (abs(u) < _MAX_ELEMENTS):
+        return 0, 0.0
+    e = math.floor(u)
+    if not periodic:
+        e = min(max(e, 0), nR - 2)
+    return e, u - e
+
+
+@njit(cache=True, inline="always")
+def _parcel_ok(x0, x1, e0, e1, ds, nR, periodic):
+    """A parcel the kernels can integrate: finite labels in order, spanning at most one period."""
+    if not (abs(x0 / ds) < _MAX_ELEMENTS and abs(x1 / ds) < _MAX_ELEMENTS):
+        return False
+    if not (x1 >= x0) or e1 < e0:
+        return False
+    return not (periodic and e1 - e0 > nR)
+
+
+@njit(cache=True)
+def _check_shapes(nlab, nR, periodic, ds):
+    if nR < (1 if periodic else 2):
+        raise ValueError("parcel kernels: too few nodal radii")
+    if nlab < 1:
+        raise ValueError("parcel kernels: no labels")
+    if not (ds > 0.0):
+        raise ValueError("parcel kernels: ds must be positive")
 
 
 @njit(cache=True, inline="always")
@@ -135,9 +238,15 @@ def _g(a, b, t, ds):
 @njit(cache=True)
 def _volumes(s, R, ds, periodic, V):
     nR = R.shape[0]
+    _check_shapes(s.shape[0], nR, periodic, ds)
+    if V.shape[0] < s.shape[0] - 1:
+        raise ValueError("parcel kernels: V is shorter than the number of parcels")
     for k in range(s.shape[0] - 1):
         e0, t0 = _locate(s[k], ds, nR, periodic)
         e1, t1 = _locate(s[k + 1], ds, nR, periodic)
+        if not _parcel_ok(s[k], s[k + 1], e0, e1, ds, nR, periodic):
+            V[k] = np.nan
+            continue
         v = 0.0
         for e in range(e0, e1):
             a = R[_node(e, nR, periodic)]
@@ -218,17 +327,24 @@ def _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, H):
 def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     nR = R.shape[0]
     nlab = s.shape[0]
+    _check_shapes(nlab, nR, periodic, ds)
     M = nlab - 1
+    if c1.shape[0] < M or c2.shape[0] < M:
+        raise ValueError("parcel kernels: c1 or c2 is shorter than the number of parcels")
     e0s = np.empty(M, np.int64)
     e1s = np.empty(M, np.int64)
     t0s = np.empty(M)
     t1s = np.empty(M)
+    ok = np.empty(M, np.bool_)
     nh = 0
     nj = 0
-    nmax = 0
+    nmax = 4
     for k in range(M):
         e0, t0 = _locate(s[k], ds, nR, periodic)
         e1, t1 = _locate(s[k + 1], ds, nR, periodic)
+        ok[k] = _parcel_ok(s[k], s[k + 1], e0, e1, ds, nR, periodic)
+        if not ok[k]:  # a NaN block on one element keeps every index in range
+            e1 = e0
         e0s[k], e1s[k], t0s[k], t1s[k] = e0, e1, t0, t1
         nl = 2 + (e1 - e0 + 2) if want_R else 2
         nh += nl * nl
@@ -254,7 +370,14 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
         e0, e1, t0, t1 = e0s[k], e1s[k], t0s[k], t1s[k]
         nfull = 2 + e1 - e0 + 2
         gl = g[:nfull]
-        r0, r1, a0, b0, a1, b1 = _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, gl)
+        Hl = H[:nfull, :nfull]
+        if ok[k]:
+            r0, r1, a0, b0, a1, b1 = _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, gl)
+            if want_hessian:
+                _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
+        else:
+            gl[:] = np.nan
+            Hl[:, :] = np.nan
         idx[0] = k
         idx[1] = k + 1
         for i in range(2, nfull):
@@ -266,8 +389,6 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
                 gR[idx[i] - nlab] += c1[k] * gl[i]
         if want_hessian:
             nl = nfull if want_R else 2
-            Hl = H[:nfull, :nfull]
-            _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
             for i in range(nl):
                 jrows[pj] = k
                 jcols[pj] = idx[i]

@@ -26,7 +26,7 @@ import scipy.sparse as sp
 
 from . import terms as T
 from .errors import SceneError
-from .geometry import parcel_volumes, radius_at
+from .geometry import label_problem, parcel_volumes, radius_at
 from .initial import initial_fields, shape_profile
 from .thermo import make_eos
 
@@ -257,17 +257,39 @@ class Model:
         mu = c[i["mu"]:] if self.incompressible else None
         return T.Config(s, R, mu)
 
+    def label_problem(self, cfg):
+        """``(k, text)`` naming the first label that folds the lattice or leaves the tube, or None.
+
+        Closed tubes: labels inside ``[0, L]`` and strictly increasing; periodic tubes: strictly
+        increasing over one period (see :func:`varint.geometry.label_problem`).
+        """
+        if not self.has_fluid:
+            return None
+        return label_problem(cfg.s, self.nR, self.ds, self.periodic)
+
     def energies(self, cfg):
-        """Each potential term's value (the multiplier term is left out: it vanishes on the constraint)."""
+        """Each potential term's value (the multiplier term is left out: it vanishes on the constraint).
+
+        NaN for every term when the labels are outside the lattice's domain (:meth:`label_problem`).
+        """
         cache = {}
-        return {t.name: t.energy(cfg, cache) for t in self.terms if t.name != "incompressibility"}
+        bad = self.label_problem(cfg) is not None
+        return {t.name: (math.nan if bad else t.energy(cfg, cache)) for t in self.terms if t.name != "incompressibility"}
 
     def potential(self, cfg):
+        if self.label_problem(cfg) is not None:
+            return math.nan
         cache = {}
         return sum(t.energy(cfg, cache) for t in self.terms)
 
     def gradient(self, cfg):
-        """Gradient of the potential in configuration index space."""
+        """Gradient of the potential in configuration index space.
+
+        All NaN when the labels fold or leave the tube: a Newton iterate there has a non-finite
+        residual, which fails the step cleanly instead of evaluating the kernels outside their domain.
+        """
+        if self.label_problem(cfg) is not None:
+            return np.full(self.nconfig, np.nan)
         gs = np.zeros(self.index["R"])
         gR = np.zeros(self.nR)
         gmu = np.zeros(self.M if self.incompressible else 0)
@@ -277,7 +299,9 @@ class Model:
         return np.concatenate([gs, gR, gmu])
 
     def hessian(self, cfg):
-        """Hessian of the potential in configuration index space (CSR)."""
+        """Hessian of the potential in configuration index space (CSR); NaN on the diagonal when the labels are invalid."""
+        if self.label_problem(cfg) is not None:
+            return sp.diags(np.full(self.nconfig, np.nan)).tocsr()
         cache = {}
         parts = [t.hessian(cfg, cache, self.index) for t in self.terms]
         r = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)

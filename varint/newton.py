@@ -43,14 +43,21 @@ class _Diagonal:
 
 
 def factorize(J):
-    """LU of a sparse Jacobian (or a cheap inverse when it is diagonal)."""
+    """LU of a sparse Jacobian (or a cheap inverse when it is diagonal); None if singular or not finite."""
     J = sp.csc_matrix(J)
+    if not np.all(np.isfinite(J.data)):
+        return None
     if J.nnz == np.count_nonzero(J.diagonal()) and J.nnz == J.shape[0]:
         return _Diagonal(J.diagonal())
     try:
         return spla.splu(J)
     except RuntimeError:  # exactly singular
         return None
+
+
+def _singular(J):
+    """Why :func:`factorize` gave no factor."""
+    return "Jacobian is not finite" if not np.all(np.isfinite(sp.csc_matrix(J).data)) else "singular Jacobian"
 
 
 def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refresh=RATE_REFRESH,
@@ -83,11 +90,12 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
     n_res = n_jac = 0
     jac_iter = None  # iteration at which the factorisation in use was computed (None: inherited)
     if factor is None:
-        factor = factorize(jacobian(z))
+        J = jacobian(z)
+        factor = factorize(J)
         n_jac += 1
         jac_iter = 0
-    if factor is None:
-        return NewtonResult(False, z, 0, np.inf, np.nan, None, n_res, n_jac, "singular Jacobian")
+        if factor is None:
+            return NewtonResult(False, z, 0, np.inf, np.nan, None, n_res, n_jac, _singular(J))
     err_prev = None
     rate = np.nan
     it = 0
@@ -128,12 +136,13 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
                     return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "diverging")
                 if jac_iter is None or jac_iter < it:
                     # slow contraction: refresh the Jacobian here and carry on
-                    factor = factorize(jacobian(z))
+                    J = jacobian(z)
+                    factor = factorize(J)
                     n_jac += 1
                     jac_iter = it
                     err_prev = None
                     if factor is None:
-                        return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, "singular Jacobian")
+                        return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, _singular(J))
                     continue
         err_prev = err
     return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "no convergence within max_iterations")
@@ -156,10 +165,11 @@ def newton_damped(residual, jacobian, z0, scale, tol, max_iter, weight=None):
     for it in range(1, max_iter + 1):
         if not np.isfinite(norm):
             return NewtonResult(False, z, it, np.inf, np.nan, factor, n_res, n_jac, "residual is not finite")
-        factor = factorize(jacobian(z))
+        J = jacobian(z)
+        factor = factorize(J)
         n_jac += 1
         if factor is None:
-            return NewtonResult(False, z, it, err, np.nan, None, n_res, n_jac, "singular Jacobian")
+            return NewtonResult(False, z, it, err, np.nan, None, n_res, n_jac, _singular(J))
         dz = -factor.solve(r)
         alpha = 1.0
         while True:

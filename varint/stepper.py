@@ -198,10 +198,19 @@ class Simulation:
         """Forget the reused factorisation (done at checkpoints so a restart repeats the same arithmetic)."""
         self._factor = None
 
+    def _where(self, n):
+        return f"step {n} (t = {n * self.h:.6g} s)"
+
+    def _folded(self, n, problem, what):
+        k, text = problem
+        return SolverError(f"{self._where(n)}: {text} {what}: the step is too large for this motion; "
+                           "try a smaller time.step", step=n, time=n * self.h)
+
     def step(self):
         st = self.state
         m = self.model
         nq = m.nq
+        n1 = st.n + 1
         z0 = np.concatenate([st.q + self.h * st.v, st.lam])
         sch = self.scheme
         if sch.explicit():
@@ -212,21 +221,36 @@ class Simulation:
                          self.tol, self.max_iter, self._factor)
             if not res.converged:
                 self._factor = None
+                # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
+                problem = m.label_problem(self._step_config(st.q, res.z))
+                if problem is not None:
+                    raise self._folded(n1, problem, f"in Newton iterate {res.iterations}")
                 raise SolverError(
-                    f"Newton failed at step {st.n + 1} (t = {st.t + self.h:.6g} s): {res.message}; "
+                    f"Newton failed at {self._where(n1)}: {res.message}; "
                     f"scaled update {res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; "
-                    "try a smaller time.step", step=st.n + 1, time=st.t + self.h, residual=res.error, rate=res.rate)
+                    "try a smaller time.step", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
             self._factor = res.factor
             z, iters, nres, njac = res.z, res.iterations, res.n_residual, res.n_jacobian
         q1, lam = z[:nq], z[nq:]
+        problem = m.label_problem(m.config(np.concatenate([q1, lam])))
+        if problem is not None:
+            self._factor = None
+            raise self._folded(n1, problem, "at the new time level")
         p1 = sch.momentum_plus(st.q, z)
         v = (q1 - st.q) / self.h
-        self.state = State(st.n + 1, (st.n + 1) * self.h, q1.copy(), p1, lam.copy(), v, st.q.copy())
+        self.state = State(n1, n1 * self.h, q1.copy(), p1, lam.copy(), v, st.q.copy())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = iters, nres, njac
         s.total_iterations += iters
         s.total_jacobians += njac
         return self.state
+
+    def _step_config(self, q0, z):
+        """The configuration the step's residual evaluates at z (the midpoint, or the new level)."""
+        nq = self.model.nq
+        if isinstance(self.scheme, Midpoint):
+            return self.model.config(np.concatenate([0.5 * (q0 + z[:nq]), z[nq:]]))
+        return self.model.config(z)
 
     # -- monitors -------------------------------------------------------------
 
