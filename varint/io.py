@@ -1,12 +1,19 @@
-"""HDF5 run files (DESIGN §5), written incrementally and resumable.
+"""HDF5 run files, written incrementally and resumable (layout: docs/output.md).
 
 Layout::
 
     /                      attrs: varint_version, scene_toml, scheme, step, title, records
-    /time                  (K,)  dimension scale "time"
+    /time                  (K,)  dimension scale "time", hard-linked into every group of series
+    /parcel, /label, /node, /component, /axis
+                           netCDF dimensions without values (empty dimension scales)
     /monitors/<name>       (K, ...)
     /fields/<group>/<name> (K, ...)
-    /checkpoint            q, p, lam, v, q_prev + attrs n, t, records
+    /checkpoint            slots a, b with q, p, lam, v, q_prev + attrs slot, n, t, records
+
+Every axis of every dataset carries an HDF5 dimension scale and every dataset a ``units``
+attribute, so netCDF readers (xarray with ``engine="h5netcdf"``) open the file group by group.
+The scales of the index axes live at the root: netCDF looks a dimension up in a variable's
+group and its ancestors.
 
 Each record is appended (datasets resized by one), then the checkpoint is
 overwritten and ``records`` incremented, then the file is flushed.  A run
@@ -23,7 +30,158 @@ from . import __version__
 from .errors import OutputError
 from .stepper import State
 
-__all__ = ["RunWriter", "read_run", "read_checkpoint", "summary"]
+__all__ = ["RunWriter", "read_run", "read_checkpoint", "summary", "UNITS", "DIMS", "units_of"]
+
+#: Units of every dataset (UDUNITS spelling, "1" for dimensionless), by path in the file.
+UNITS = {
+    "time": "s",
+    # monitors
+    "monitors/energy": "J",
+    "monitors/kinetic_energy": "J",
+    "monitors/energy_fluid_kinetic": "J",
+    "monitors/energy_wall_kinetic": "J",
+    "monitors/energy_internal": "J",
+    "monitors/energy_wall_elastic": "J",
+    "monitors/energy_external_pressure": "J",
+    "monitors/energy_gravity": "J",
+    "monitors/energy_bending_torsion": "J",
+    "monitors/energy_stretch_shear": "J",
+    "monitors/energy_load": "J",
+    "monitors/mass": "kg",
+    "monitors/linear_momentum": "kg m/s",
+    "monitors/angular_momentum": "kg m^2/s",
+    "monitors/angular_momentum_cm": "kg m^2/s",
+    "monitors/entropy": "J/K",
+    "monitors/constraint_residual": "1",
+    "monitors/newton_iterations": "1",
+    "monitors/frame_orthogonality": "1",
+    # fields
+    "fields/fluid/s": "m",
+    "fields/fluid/density": "kg/m^3",
+    "fields/fluid/pressure": "Pa",
+    "fields/fluid/velocity": "m/s",
+    "fields/fluid/entropy": "J/(kg K)",
+    "fields/wall/R": "m",
+    "fields/wall/velocity": "m/s",
+    "fields/rod/r": "m",
+    "fields/rod/Lambda": "1",
+}
+
+#: Names of the axes after the first (time), by path; monitors of shape (3,) are vectors ("component").
+DIMS = {
+    "fields/fluid/s": ("label",),
+    "fields/fluid/velocity": ("label",),
+    "fields/fluid/density": ("parcel",),
+    "fields/fluid/pressure": ("parcel",),
+    "fields/fluid/entropy": ("parcel",),
+    "fields/wall/R": ("node",),
+    "fields/wall/velocity": ("node",),
+    "fields/rod/r": ("node", "component"),
+    "fields/rod/Lambda": ("node", "component", "axis"),  # column j: body axis E_j in space
+}
+
+_DIMENSIONS = {
+    "parcel": "parcel index k (between labels k and k+1)",
+    "label": "label index (parcel boundaries)",
+    "node": "node index",
+    "component": "spatial component (x, y, z)",
+    "axis": "body axis E_1, E_2, E_3 (columns of Lambda)",
+}
+
+#: What the packed restart vectors hold (their entries have the SI unit of their own kind).
+_CHECKPOINT = {
+    "q": "generalised coordinates at the level",
+    "p": "discrete momenta at the level",
+    "lam": "algebraic unknowns (multipliers, quasistatic radii) of the last step",
+    "v": "velocities of the last step",
+    "q_prev": "generalised coordinates at the previous level",
+}
+
+
+def units_of(path):
+    """Units of the dataset at ``path`` (e.g. ``"fields/fluid/pressure"``), or None if not tabulated."""
+    path = path.lstrip("/")
+    if path in UNITS:
+        return UNITS[path]
+    if path.startswith("monitors/energy_"):  # every energy term
+        return "J"
+    return None
+
+
+def _dims_of(path, shape):
+    """Names of the axes of a series after time (known paths from DIMS, else generic ones)."""
+    path = path.lstrip("/")
+    names = DIMS.get(path)
+    if names is not None and len(names) == len(shape):
+        return names
+    if path.startswith("monitors/") and shape == (3,):
+        return ("component",)
+    stem = path.replace("/", "_")
+    return tuple(f"{stem}_dim{i + 1}" for i in range(len(shape)))
+
+
+_NOT_A_VARIABLE = "This is a netCDF dimension but not a netCDF variable."
+
+
+def _make_dimension(g, name, size, description=None):
+    """A netCDF dimension without coordinate values: an empty dimension scale (no storage is allocated)."""
+    d = g.create_dataset(name, shape=(size,), dtype="f4")
+    d.make_scale(f"{_NOT_A_VARIABLE}{size:10d}")
+    d.attrs["units"] = "1"
+    if description:
+        d.attrs["long_name"] = description
+    return d
+
+
+def _root_dimension(f, name, size):
+    """The root dimension ``name`` of length ``size`` (a clash of sizes gets ``name_size``)."""
+    if name in f:
+        d = f[name]
+        if isinstance(d, h5py.Dataset) and d.shape == (size,) and d.is_scale:
+            return d
+        return _root_dimension(f, f"{name}_{size}", size)
+    return _make_dimension(f, name, size, _DIMENSIONS.get(name))
+
+
+def _series_of(f):
+    """Every series (time-indexed dataset) under /monitors and /fields, scales left out."""
+    out = []
+    for top in ("monitors", "fields"):
+        if top in f:
+            f[top].visititems(lambda name, obj: out.append(obj) if isinstance(obj, h5py.Dataset) and not obj.is_scale else None)
+    return out
+
+
+def _label_file(f):
+    """Label every axis of every series with a dimension scale and give it its units (idempotent: old
+    files get the same on resume).  /time is also linked into each group of series (a hard link, not a
+    copy), so a group opened on its own has its time coordinate."""
+    for d in _series_of(f):
+        path = d.name.lstrip("/")
+        names = ("time",) + _dims_of(path, d.shape[1:])
+        for axis, name in enumerate(names):
+            if not len(d.dims[axis]):
+                d.dims[axis].attach_scale(f["time"] if axis == 0 else _root_dimension(f, name, d.shape[axis]))
+        if "units" not in d.attrs and units_of(path) is not None:
+            d.attrs["units"] = units_of(path)
+        group = d.parent
+        if "time" not in group:
+            group["time"] = f["time"]
+
+
+def _put_vector(g, name, val):
+    """Write a restart vector into checkpoint slot ``g`` with its own index dimension ``<name>_index``."""
+    dim = f"{name}_index"
+    if name in g and g[name].shape == val.shape and dim in g and len(g[name].dims[0]):
+        g[name][...] = val
+        return
+    for k in (name, dim):
+        if k in g:
+            del g[k]
+    d = g.create_dataset(name, data=val)
+    d.dims[0].attach_scale(_make_dimension(g, dim, val.shape[0], f"index of {name}"))
+    d.attrs["units"] = "SI"  # a packed vector: each entry in the SI unit of its own kind
+    d.attrs["long_name"] = _CHECKPOINT.get(name, name)
 
 
 class RunWriter:
@@ -31,16 +189,22 @@ class RunWriter:
 
     def __init__(self, path, scene, h, monitors, fields, resume=False):
         self.path = str(path)
+        self.f = None
         try:
             if resume:
                 self.f = h5py.File(self.path, "r+")
                 self._check_resumable(scene)
                 self._trim()
+                self._upgrade()
             else:
                 self.f = h5py.File(self.path, "w")
                 self._create(scene, h, monitors, fields)
         except OSError as exc:
+            self.close()
             raise OutputError(f"{self.path}: cannot {'resume' if resume else 'create'} the run file ({_oserr(exc)})") from None
+        except BaseException:
+            self.close()
+            raise
 
     # -- creation ----------------------------------------------------------------
 
@@ -55,10 +219,12 @@ class RunWriter:
         t = f.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(256,))
         t.attrs["units"] = "s"
         t.make_scale("time")
+        t.attrs["long_name"] = "time"
         for name, val in monitors.items():
             self._series(f"monitors/{name}", np.asarray(val))
         for name, val in fields.items():
             self._series(f"fields/{name}", np.asarray(val))
+        _label_file(f)
         cp = f.create_group("checkpoint")
         cp.attrs["n"] = 0
         cp.attrs["t"] = 0.0
@@ -72,7 +238,7 @@ class RunWriter:
         d = self.f.create_dataset(path, shape=(0,) + shape, maxshape=(None,) + shape,
                                   dtype="f8" if val.dtype.kind == "f" else "i8", chunks=(rows,) + shape)
         d.dims[0].attach_scale(self.f["time"])
-        d.dims[0].label = "time"
+        return d
 
     # -- resume ------------------------------------------------------------------
 
@@ -80,8 +246,19 @@ class RunWriter:
         f = self.f
         if "checkpoint" not in f or "scene_toml" not in f.attrs:
             raise OutputError(f"{self.path}: not a varint run file (no checkpoint); cannot resume")
+        if f.attrs.get("static", False):
+            raise OutputError(f"{self.path}: holds a static equilibrium written by `varint static`, not a run; "
+                              "it cannot be resumed (run the scene into another file)")
         if f.attrs["scene_toml"] != scene.text:
             raise OutputError(f"{self.path}: was started from a different scene; resume with the same scene file")
+
+    def _upgrade(self):
+        """Files written before the dimension scales get them (and units) when resumed."""
+        if not self.f["time"].is_scale:
+            self.f["time"].make_scale("time")
+        if "units" not in self.f["time"].attrs:
+            self.f["time"].attrs["units"] = "s"
+        _label_file(self.f)
 
     def _trim(self):
         k = int(_active_checkpoint(self.f).attrs["records"])
@@ -91,10 +268,7 @@ class RunWriter:
         self.f.attrs["records"] = k
 
     def _datasets(self):
-        out = [self.f["time"]]
-        self.f.visititems(lambda name, obj: out.append(obj) if isinstance(obj, h5py.Dataset) and (
-            name.startswith("monitors/") or name.startswith("fields/")) else None)
-        return out
+        return [self.f["time"]] + _series_of(self.f)
 
     def checkpoint_state(self):
         return read_checkpoint(self.f)
@@ -120,15 +294,11 @@ class RunWriter:
             for name in ("q", "p", "lam", "v", "q_prev"):
                 val = getattr(state, name)
                 if val is None:
-                    if name in g:
-                        del g[name]
+                    for stale in (name, f"{name}_index"):
+                        if stale in g:
+                            del g[stale]
                     continue
-                if name in g and g[name].shape == val.shape:
-                    g[name][...] = val
-                else:
-                    if name in g:
-                        del g[name]
-                    g.create_dataset(name, data=val)
+                _put_vector(g, name, np.asarray(val))
             g.attrs["n"] = state.n
             g.attrs["t"] = state.t
             g.attrs["records"] = k + 1
@@ -150,7 +320,8 @@ class RunWriter:
 
     def close(self):
         try:
-            self.f.close()
+            if self.f is not None:
+                self.f.close()
         except Exception:  # noqa: BLE001 - closing after a failed write must not mask the first error
             pass
 
@@ -181,10 +352,12 @@ def read_run(path):
             k = int(f.attrs.get("records", f["time"].shape[0]))
             out = {"attrs": {a: _attr(f.attrs[a]) for a in f.attrs}, "time": f["time"][:k], "monitors": {}, "fields": {}}
             for name, d in f["monitors"].items():
-                out["monitors"][name] = d[:k]
+                if not d.is_scale:  # /monitors/time is /time
+                    out["monitors"][name] = d[:k]
             for g in f["fields"]:
                 for name, d in f["fields"][g].items():
-                    out["fields"][f"{g}/{name}"] = d[:k]
+                    if not d.is_scale:
+                        out["fields"][f"{g}/{name}"] = d[:k]
             return out
     except (OSError, KeyError) as exc:
         raise OutputError(f"{path}: not a readable varint run file ({_oserr(exc)})") from None
