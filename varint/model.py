@@ -314,10 +314,31 @@ class Model:
     def volumes(self, cfg):
         return parcel_volumes(cfg.s, cfg.R, self.ds, self.periodic)
 
+    def density(self, cfg, V=None):
+        """Density of each parcel in configuration ``cfg``.
+
+        Compressible fluid: ``m_k / V_k`` with ``V_k`` the parcel volume of ``cfg`` (the density the
+        equation of state sees).  Incompressible fluid: the parcel's own constant density
+        ``m_k / V0_k`` (its volume is constrained, the density is not derived from it).
+        """
+        if self.incompressible:
+            return self.m / self.V0
+        return self.m / (self.volumes(cfg) if V is None else V)
+
+    def fluid_mass(self, cfg):
+        """``sum_k rho_k V_k``: the density field of :meth:`density` integrated over the parcel volumes of ``cfg``.
+
+        Evaluated from the state, not from the parcel masses: for an incompressible fluid it measures the
+        volume constraint (``rho0 sum_k V_k``), for a compressible one it checks that the density field
+        and the configuration's volumes agree.
+        """
+        V = self.volumes(cfg)
+        return float(np.sum(self.density(cfg, V) * V))
+
     def fluid_fields(self, cfg, p_q):
         """Density, pressure (parcels) and velocity (labels) at one time level."""
         V = self.volumes(cfg)
-        rho = self.m / V
+        rho = self.density(cfg, V)
         if self.incompressible:
             pressure = cfg.mu.copy()
         else:

@@ -279,7 +279,9 @@ class Simulation:
         for k, val in pot.items():
             out[f"energy_{k}"] = val
         out["energy"] = out["kinetic_energy"] + sum(pot.values())
-        out["mass"] = float(np.sum(m.m))
+        # the mass the state holds: density field times the parcel volumes of the configuration (for an
+        # incompressible fluid at the step's midpoint, where its volume constraint is imposed)
+        out["mass"] = m.fluid_mass(self._mass_config()) if m.has_fluid else 0.0
         mom = np.zeros(3)
         if "s" in m.layout:
             mom[0] = float(np.sum(st.p[m.layout["s"]]))
@@ -290,9 +292,14 @@ class Simulation:
         if m.has_fluid:
             out["entropy"] = float(np.sum(m.m * m.S))
             if m.incompressible:
-                cfg = m.config(np.concatenate([0.5 * (st.q + (st.q_prev if st.q_prev is not None else st.q)), st.lam]))
-                out["constraint_residual"] = float(np.max(np.abs(m.volumes(cfg) / m.V0 - 1.0)))
+                out["constraint_residual"] = float(np.max(np.abs(m.volumes(self._mass_config()) / m.V0 - 1.0)))
         return out
+
+    def _mass_config(self):
+        """The level's configuration, or the last step's midpoint for an incompressible fluid."""
+        m, st = self.model, self.state
+        q = st.q if not m.incompressible or st.q_prev is None else 0.5 * (st.q + st.q_prev)
+        return m.config(np.concatenate([q, st.lam]))
 
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""
