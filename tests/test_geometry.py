@@ -29,10 +29,26 @@ def test_volumes_match_quadrature(periodic):
 @pytest.mark.parametrize("periodic", [False, True])
 def test_volumes_sum_to_tube_volume(periodic):
     s, R, ds = _case(periodic)
+    V = G.parcel_volumes(s, R, ds, periodic)
+    vol = G.tube_volume(R, ds, periodic)[0]
+    assert np.sum(V) == pytest.approx(vol, rel=1e-13)
     if not periodic:
-        assert np.sum(G.parcel_volumes(s, R, ds, periodic)) == pytest.approx(G.tube_volume(R, ds, periodic)[0], rel=1e-13)
+        # closed: the end labels sit on the tube's ends; a label moved inside the tube only shifts volume
+        # between its two parcels, and dropping a label merges them exactly
+        t = s.copy()
+        t[3] = 0.5 * (s[3] + s[4])
+        W = G.parcel_volumes(t, R, ds, False)
+        assert np.sum(W) == pytest.approx(vol, rel=1e-13)
+        assert W[2] > V[2] and W[3] < V[3]
+        merged = G.parcel_volumes(np.delete(s, 3), R, ds, False)
+        assert merged[2] == pytest.approx(V[2] + V[3], rel=1e-13)
     else:
-        assert np.sum(G.parcel_volumes(s, R, ds, periodic)) == pytest.approx(G.tube_volume(R, ds, periodic)[0], rel=1e-13)
+        # periodic: the labels straddle the seam; every parcel is unchanged when the whole lattice is carried
+        # once (or twice, or backwards) round the loop, and by a rotation of the radii by one element
+        L = ds * len(R)
+        for turns in (1, 2, -1):
+            assert np.allclose(G.parcel_volumes(s + turns * L, R, ds, True), V, rtol=1e-12, atol=0)
+        assert np.allclose(G.parcel_volumes(s + ds, np.roll(R, 1), ds, True), V, rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("periodic", [False, True])
@@ -60,6 +76,118 @@ def test_derivatives_against_finite_differences(periodic):
     Hm = sp.coo_matrix((H[2], (H[0], H[1])), shape=(n, n)).toarray()
     assert np.allclose(Hm, Hfd, atol=1e-7 * np.abs(Hm).max())
     assert np.allclose(Hm, Hm.T)
+
+
+# -- an independent NumPy reference -----------------------------------------------------------------
+#
+# Written from the definitions, not from the kernels' closed form: R(x) = sum_j R_j phi_j(x) with hat
+# functions phi_j, V_k = int_{s_k}^{s_{k+1}} pi R(x)^2 dx by Gauss-Legendre on each piece between nodes
+# (3 points integrate the quadratic and quartic integrands exactly), and
+#   dV_k/dR_j = int 2 pi R phi_j,     d2V_k/dR_i dR_j = int 2 pi phi_i phi_j,
+#   dV_k/ds_{k+1} = pi R(s_{k+1})^2,  d2V_k/ds_{k+1}^2 = 2 pi R R'(s_{k+1}),  d2V_k/ds_{k+1} dR_j = 2 pi R phi_j(s_{k+1}),
+# and the same with a minus sign at s_k.
+
+
+def _hats(x, nR, ds, periodic):
+    """phi_j(x) and phi_j'(x) at the points x (rows), for the nR nodal hat functions."""
+    x = np.atleast_1d(np.asarray(x, dtype=float))
+    e = np.floor(x / ds)
+    if not periodic:
+        e = np.clip(e, 0, nR - 2)
+    t = x / ds - e
+    e = e.astype(np.int64)
+    ja, jb = (e % nR, (e + 1) % nR) if periodic else (e, e + 1)
+    rows = np.arange(len(x))
+    phi, dphi = np.zeros((len(x), nR)), np.zeros((len(x), nR))
+    np.add.at(phi, (rows, ja), 1 - t)
+    np.add.at(phi, (rows, jb), t)
+    np.add.at(dphi, (rows, ja), -1 / ds)
+    np.add.at(dphi, (rows, jb), 1 / ds)
+    return phi, dphi
+
+
+def _reference(s, R, ds, periodic, c1, c2):
+    """V (M,), dV/dq (M, n) and sum_k c2_k grad V_k grad V_k^T + c1_k hess V_k (n, n), q = [s | R]."""
+    nlab, nR = len(s), len(R)
+    M, n = nlab - 1, nlab + nR
+    xg, wg = np.polynomial.legendre.leggauss(3)
+    V, J, H = np.zeros(M), np.zeros((M, n)), np.zeros((n, n))
+    for k in range(M):
+        a, b = s[k], s[k + 1]
+        cuts = np.arange(np.floor(a / ds) + 1, np.ceil(b / ds)) * ds
+        pts = np.concatenate([[a], cuts[(cuts > a) & (cuts < b)], [b]])
+        lo, hi = pts[:-1, None], pts[1:, None]
+        x = (0.5 * (lo + hi) + 0.5 * (hi - lo) * xg).ravel()
+        w = (0.5 * (hi - lo) * wg).ravel()
+        phi, _ = _hats(x, nR, ds, periodic)
+        r = phi @ R
+        V[k] = np.sum(w * np.pi * r * r)
+        hk = np.zeros((n, n))
+        J[k, nlab:] = (w * 2 * np.pi * r) @ phi
+        hk[nlab:, nlab:] = (phi.T * (w * 2 * np.pi)) @ phi
+        for i, sign in ((k, -1.0), (k + 1, 1.0)):
+            ph, dph = _hats(s[i], nR, ds, periodic)
+            ri, dri = float(ph[0] @ R), float(dph[0] @ R)
+            J[k, i] = sign * np.pi * ri * ri
+            hk[i, i] = sign * 2 * np.pi * ri * dri
+            hk[i, nlab:] = hk[nlab:, i] = sign * 2 * np.pi * ri * ph[0]
+        H += c2[k] * np.outer(J[k], J[k]) + c1[k] * hk
+    return V, J, H
+
+
+def _dense(coo, shape):
+    return sp.coo_matrix((coo[2], (coo[0], coo[1])), shape=shape).toarray()
+
+
+LATTICES = [dict(nlab=9, N=7), dict(nlab=31, N=5), dict(nlab=4, N=23)]  # ~1, ~6 parcels per element, ~8 elements per parcel
+
+
+@pytest.mark.parametrize("lattice", LATTICES, ids=["mixed", "fine-parcels", "long-parcels"])
+@pytest.mark.parametrize("periodic", [False, True])
+def test_kernels_against_numpy_reference(periodic, lattice):
+    s, R, ds = _case(periodic, seed=11, **lattice)
+    M, nlab, nR = len(s) - 1, len(s), len(R)
+    n = nlab + nR
+    rng = np.random.default_rng(2)
+    c1, c2 = rng.standard_normal(M), rng.standard_normal(M)
+    Vref, Jref, Href = _reference(s, R, ds, periodic, c1, c2)
+    V = np.empty(M)
+    G._volumes(s, R, ds, periodic, V)
+    assert np.allclose(V, Vref, rtol=1e-13, atol=0)
+    gs, gR, H, J = G._derivatives(s, R, ds, periodic, c1, c2, True, True)
+    g = c1 @ Jref
+    scale = np.abs(g).max()
+    assert np.allclose(gs, g[:nlab], rtol=0, atol=1e-13 * scale)
+    assert np.allclose(gR, g[nlab:], rtol=0, atol=1e-13 * scale)
+    assert np.allclose(_dense(J, (M, n)), Jref, rtol=0, atol=1e-13 * np.abs(Jref).max())
+    assert np.allclose(_dense(H, (n, n)), Href, rtol=0, atol=1e-12 * np.abs(Href).max())
+    # radii as data: label derivatives only
+    gs2, gR2, H2, J2 = G._derivatives(s, R, ds, periodic, c1, c2, False, True)
+    assert np.array_equal(gs2, gs) and not gR2.any()
+    Hs = np.zeros_like(Href)
+    Hs[:nlab, :nlab] = Href[:nlab, :nlab]
+    assert np.allclose(_dense(H2, (n, n)), Hs, rtol=0, atol=1e-12 * np.abs(Href).max())
+    Js = np.zeros_like(Jref)
+    Js[:, :nlab] = Jref[:, :nlab]
+    assert np.allclose(_dense(J2, (M, n)), Js, rtol=0, atol=1e-13 * np.abs(Jref).max())
+
+
+def test_numpy_reference_against_quadrature_and_differences():
+    """The reference itself: volumes against scipy's quad, its gradient against differences of its volumes."""
+    for periodic in (False, True):
+        s, R, ds = _case(periodic, seed=4)
+        M = len(s) - 1
+        c = np.ones(M)
+        V, J, _ = _reference(s, R, ds, periodic, c, c)
+        assert np.allclose(V, G.parcel_volumes_reference(s, R, ds, periodic), rtol=1e-12, atol=0)
+        q = np.concatenate([s, R])
+        eps = 1e-7
+        for i in range(len(q)):
+            e = np.zeros(len(q))
+            e[i] = eps
+            up = _reference((q + e)[:len(s)], (q + e)[len(s):], ds, periodic, c, c)[0]
+            dn = _reference((q - e)[:len(s)], (q - e)[len(s):], ds, periodic, c, c)[0]
+            assert np.allclose((up - dn) / (2 * eps), J[:, i], rtol=0, atol=1e-7 * np.abs(J).max())
 
 
 def test_kernels_equal_their_python_versions():
