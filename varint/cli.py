@@ -1,8 +1,10 @@
-"""Command line: ``varint run | check | info | plot | modes``.
+"""Command line: ``varint run | check | info | plot | static | modes``.
 
-Every failure the user can cause (bad scene, unreadable file, Newton failure)
-prints one line per problem prefixed ``varint: error:`` and exits non-zero;
-nothing else is caught, so a traceback always means a bug in varint.
+Every failure the user can cause (bad scene, unreadable file, an output that would
+replace a file, Newton failure) prints one line per problem prefixed ``varint: error:``
+and exits 2.  Ctrl-C prints one line and exits 130 (for ``run``: the file and how to
+resume it); a reader that closes the pipe early ends the command quietly (exit 141).
+Nothing else is caught, so a traceback always means a bug in varint.
 """
 
 from __future__ import annotations
@@ -10,12 +12,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from . import __version__
-from .errors import VarintError
+from .errors import SceneError, VarintError
 
 __all__ = ["main"]
 
@@ -32,13 +36,48 @@ def _jsonable(x):
     return x
 
 
-def cmd_run(args):
-    from .runner import default_output, run_scene
+class _Interrupted(Exception):
+    """Ctrl-C, with what the user should know about the file it left (one line)."""
+
+
+def _load_scene(path):
+    """load_scene, with a binary file named as such (not as a decoding error)."""
     from .scene import load_scene
 
-    scene = load_scene(args.scene)
+    try:
+        Path(path).read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise SceneError("not a text (UTF-8) TOML file", source=str(path)) from None
+    except OSError:
+        pass  # a missing or unreadable file: load_scene names it
+    return load_scene(path)
+
+
+def _records(path):
+    """Complete records of a run file (0 if it is none or cannot be read)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return 0 if f.attrs.get("static", False) else int(f.attrs.get("records", 0))
+    except (OSError, ValueError, TypeError):
+        return 0
+
+
+def cmd_run(args):
+    from .runner import check_output, default_output, run_scene
+
+    scene = _load_scene(args.scene)
     out = args.output or default_output(scene, args.scene)
-    sim = run_scene(scene, out, resume=args.resume, progress=None if not args.quiet else False)
+    check_output(out, args.scene, resume=args.resume, force=args.force)
+    try:
+        sim = run_scene(scene, out, resume=args.resume, progress=None if not args.quiet else False)
+    except KeyboardInterrupt:
+        k = _records(out)
+        if k:
+            raise _Interrupted(f"interrupted; {out} holds {k} complete records (continue with: "
+                               f"varint run {args.scene} -o {out} --resume)") from None
+        raise
     st = sim.state
     print(f"wrote {out}: {st.n} steps to t = {st.t:.6g} s ({sim.stats.total_iterations} Newton iterations, "
           f"{sim.stats.total_jacobians} Jacobians)")
@@ -47,9 +86,8 @@ def cmd_run(args):
 
 def cmd_check(args):
     from .model import build_model
-    from .scene import load_scene
 
-    scene = load_scene(args.scene)
+    scene = _load_scene(args.scene)
     model = build_model(scene)
     d = {"title": scene.title, **model.describe(),
          "time": dict(scene.time), "environment": {k: v for k, v in scene.environment.items()}}
@@ -106,15 +144,23 @@ def _turned(info):
             "axis of it)") if deg > 1.0 else ""
 
 
+def _loads(model):
+    """The scene keys of a rod's static loads (empty when there are none)."""
+    names = [("rod.load.force", model.force), ("rod.load.torque", model.torque), ("environment.gravity", model.g)]
+    return [name for name, v in names if np.any(v)]
+
+
 def cmd_modes(args):
+    if args.count < 1:
+        raise VarintError(f"modes: -n/--count must be >= 1, got {args.count}")
     from .analysis import modes
     from .model import build_model
     from .rod import RodModel
     from .rod_statics import rod_modes
-    from .scene import load_scene
 
-    model = build_model(load_scene(args.scene))
+    model = build_model(_load_scene(args.scene))
     frame = None
+    note = None
     if isinstance(model, RodModel):
         spin = model.spin  # rod.initial.angular_velocity
         if args.about == "static":
@@ -127,6 +173,11 @@ def cmd_modes(args):
                 print(f"# the steady rotation found has {_turned(info)}", file=sys.stderr)
         else:
             res = rod_modes(model, count=args.count)
+            loads = _loads(model)
+            if loads:
+                note = (f"{args.scene} has loads ({', '.join(loads)}): these modes are about the initial, unloaded "
+                        "state, not the loaded equilibrium" + ("" if model.free else "; use --about static for that"))
+                print(f"varint: note: {note}", file=sys.stderr)
         if np.any(spin):
             frame = {"angular_velocity": [float(x) for x in spin],
                      "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
@@ -135,7 +186,12 @@ def cmd_modes(args):
             raise VarintError(f"{args.scene}: --about static is available for [rod] scenes only")
         res = modes(model, count=args.count)
     if args.json:
-        print(json.dumps(_jsonable({"modes": res} if frame is None else {"modes": res, "frame": frame})))
+        d = {"modes": res, "about": args.about}
+        if note is not None:
+            d["note"] = note
+        if frame is not None:
+            d["frame"] = frame
+        print(json.dumps(_jsonable(d)))
     else:
         if frame is not None:
             print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
@@ -152,11 +208,12 @@ def cmd_static(args):
     from .model import build_model
     from .rod import RodModel, RodSimulation, _pack
     from .rod_statics import static_equilibrium
-    from .runner import default_output
-    from .scene import load_scene
+    from .runner import check_output, default_output
     from .stepper import State
 
-    scene = load_scene(args.scene)
+    scene = _load_scene(args.scene)
+    out = args.output or default_output(scene, args.scene, kind="static")
+    check_output(out, args.scene, force=args.force, resumable=False)
     model = build_model(scene)
     if not isinstance(model, RodModel):
         raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes only in this version")
@@ -170,7 +227,6 @@ def cmd_static(args):
     else:
         p = np.zeros(n6)
     sim.state = State(0, 0.0, _pack(Lam, r), p, np.empty(0), np.zeros(n6))
-    out = args.output or default_output(scene, args.scene).replace(".h5", "_static.h5")
     w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
     try:
         w.append(0.0, sim.monitors(), sim.fields(), sim.state)
@@ -198,6 +254,7 @@ def build_parser():
     r.add_argument("scene")
     r.add_argument("-o", "--output", help="run file (default: [output].file or SCENE.h5)")
     r.add_argument("--resume", action="store_true", help="continue an interrupted run file")
+    r.add_argument("--force", action="store_true", help="replace an existing run file")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_run)
     c = sub.add_parser("check", help="validate a scene; print effects, unknowns and invariants")
@@ -215,11 +272,12 @@ def build_parser():
     s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation), written as one frame")
     s.add_argument("scene")
     s.add_argument("-o", "--output", help="run file (default: SCENE_static.h5)")
+    s.add_argument("--force", action="store_true", help="replace an existing file")
     s.set_defaults(func=cmd_static)
     m = sub.add_parser("modes", help="eigenfrequencies of the model linearised about the initial state")
     m.add_argument("scene")
     m.add_argument("--json", action="store_true")
-    m.add_argument("-n", "--count", type=int, default=20, help="number of lowest modes")
+    m.add_argument("-n", "--count", type=int, default=20, help="number of lowest modes (>= 1)")
     m.add_argument("--about", choices=("initial", "static"), default="initial",
                    help="linearise about the scene's initial state (default) or its loaded static equilibrium / steady rotation (rods)")
     m.set_defaults(func=cmd_modes)
@@ -235,14 +293,28 @@ def main(argv=None):
         # singularity): the solvers test every residual for finiteness and fail with one line, so
         # numpy's floating-point warnings would only add noise to that line
         with np.errstate(all="ignore"):
-            return args.func(args)
+            code = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
+        return code
     except VarintError as exc:
         for line in str(exc).splitlines():
             print(f"varint: error: {line}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("varint: interrupted; the run file holds every record written so far (continue with --resume)", file=sys.stderr)
+    except _Interrupted as exc:
+        print(f"varint: {exc}", file=sys.stderr)
         return 130
+    except KeyboardInterrupt:
+        print("varint: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        # the reader went away (``varint info F | head -1``): stop quietly, as a tool killed by SIGPIPE
+        # would; what is left in stdout's buffer goes to /dev/null, not to a second error at exit
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):
+            pass
+        return 141
 
 
 if __name__ == "__main__":  # pragma: no cover

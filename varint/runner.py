@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 
+from .errors import OutputError
 from .io import RunWriter
 from .model import build_model
 from .stepper import Simulation
 
-__all__ = ["run_scene", "default_output", "make_simulation"]
+__all__ = ["run_scene", "default_output", "check_output", "make_simulation"]
 
 
 def make_simulation(model):
@@ -23,11 +25,40 @@ def make_simulation(model):
 log = logging.getLogger(__name__)
 
 
-def default_output(scene, path=None):
-    if scene.output.file:
-        return scene.output.file
-    stem = Path(path).stem if path else "run"
-    return f"{stem}.h5"
+def default_output(scene, path=None, kind=None):
+    """The run file of a scene when ``-o`` is not given: ``[output].file``, else the scene file's
+    name with ``.h5`` (in the working directory).  ``kind="static"`` gives ``NAME_static.h5``."""
+    out = scene.output.file or f"{Path(path).stem if path else 'run'}.h5"
+    if kind:
+        p = Path(out)
+        out = str(p.with_name(f"{p.stem}_{kind}{p.suffix or '.h5'}"))
+    return out
+
+
+def check_output(out, scene_path=None, resume=False, force=False, resumable=True):
+    """Refuse an output path that would lose a file, in one line.
+
+    An existing file is replaced only with ``force``; with ``resume`` it must exist (the writer then
+    checks that it is this scene's run).  The scene file itself is never an output, even with
+    ``force``.  ``resumable=False`` (``varint static``) leaves ``--resume`` out of the advice.
+    """
+    p = Path(out)
+    if scene_path is not None and p.exists() and Path(scene_path).exists() and os.path.samefile(p, scene_path):
+        raise OutputError(f"{out}: is the scene file itself; write the run to another file")
+    if p.is_dir():
+        raise OutputError(f"{out}: is a directory; give a file name")
+    parent = p.parent
+    if not parent.exists():
+        raise OutputError(f"{out}: directory {parent} does not exist")
+    if not parent.is_dir():
+        raise OutputError(f"{out}: {parent} is not a directory")
+    if resume:
+        if not p.exists():
+            raise OutputError(f"{out}: no such run file to resume")
+        return
+    if p.exists() and not force:
+        how = "continue it with --resume or replace it with --force" if resumable else "replace it with --force"
+        raise OutputError(f"{out}: exists; {how}")
 
 
 def _select(fields, groups):
