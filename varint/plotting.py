@@ -1,49 +1,513 @@
-"""PNG figures of a run file: monitors against time and space-time maps of p, u, R."""
+"""PNG figures of a run file: monitors against time, and the fields.
+
+Tubes: space-time maps of p, u and R, each on a diverging colour scale centred on the undisturbed state
+(a single record: profiles over s instead).  Rods: centreline snapshots in side and end views (a static
+file: the shape against the straight unloaded rod), a deflection too small to see at true scale drawn on
+its own scale, with the displacement of the node that moves most and the rotation of the sections about
+their own axis against time (a shaft spinning on its axis moves only there).  A single record draws
+markers.
+
+The pure functions (:func:`monitor_panels`, :func:`energy_scale`, :func:`log_floor`, :func:`undisturbed`,
+:func:`diverging_limits`, :func:`rod_deflection`, :func:`rod_view_mode`, :func:`section_twist`) carry the
+choices; :func:`plot_run` only draws them.
+"""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from .io import read_run
 
-__all__ = ["plot_run", "monitor_panels"]
+__all__ = ["plot_run", "monitor_panels", "Panel", "energy_scale", "log_floor", "undisturbed", "diverging_limits",
+           "rod_deflection", "rod_view_mode", "section_twist"]
+
+EPS = np.finfo(float).eps
+
+# |E0| is the scale of the energy error only when it is at least this fraction of the largest energy term;
+# below, (E - E0)/|E0| magnifies the error by the ratio (a cantilever released from rest and straight has
+# E0 ~ 1e-28 J against terms of 0.03 J, and read 1e19).
+ENERGY_E0_FRACTION = 0.1
+# rod deflections below this fraction of the length are drawn on their own scale (um, mm) ...
+VISIBLE_FRACTION = 0.05
+# ... unless they are at round-off (relative to the length), which is never magnified
+ROUNDOFF_FRACTION = 1e-9
+
+
+class Panel(tuple):
+    """One monitor panel: the pair ``(label, curves)`` (curves: ``[(name, values), ...]``) with how to draw it.
+
+    ``yscale`` is "linear" or "log"; on a log axis values below ``floor`` (a round-off level, not zero) are
+    drawn at it, and ``skip_first`` leaves out the first record (a change from the first record, zero by
+    definition).  ``note`` is written in the panel (e.g. the energy scale).
+    """
+
+    def __new__(cls, label, curves, yscale="linear", floor=None, floor_label="", skip_first=False, note=""):
+        self = super().__new__(cls, (label, curves))
+        self.yscale, self.floor, self.floor_label, self.skip_first, self.note = yscale, floor, floor_label, skip_first, note
+        return self
+
+    @property
+    def label(self):
+        return self[0]
+
+    @property
+    def curves(self):
+        return self[1]
+
+
+def _term_name(key):
+    return "kinetic" if key == "kinetic_energy" else key.replace("energy_", "")
+
+
+def energy_scale(mon):
+    """(scale [J], what it is) for the energy error (E - E0) / scale.
+
+    |E0| when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
+    and every ``energy_*``: max over time of |term|); otherwise that largest term, so a run starting from
+    zero energy (at rest and unloaded) is measured against the energy it actually moves around.
+    ``(1.0, None)`` when everything is zero (the error is then plotted in joules).
+    """
+    E0 = abs(float(mon["energy"][0]))
+    terms = {k: float(np.max(np.abs(v))) for k, v in mon.items()
+             if (k == "kinetic_energy" or k.startswith("energy_")) and np.size(v)}
+    key, top = max(terms.items(), key=lambda kv: kv[1]) if terms else (None, 0.0)
+    if E0 > 0 and E0 >= ENERGY_E0_FRACTION * top:
+        return E0, "|E0|"
+    if top > 0:
+        return top, f"max |E_{_term_name(key)}|"
+    return 1.0, None
+
+
+def log_floor(scale):
+    """Round-off floor ``eps * max|scale|`` of a quantity of that size (None when it is zero)."""
+    s = float(np.max(np.abs(scale))) if np.size(scale) else 0.0
+    return EPS * s if s > 0 else None
 
 
 def monitor_panels(mon):
-    """[(axis label, [(curve name, values), ...]), ...] for a run's monitors.
+    """[Panel(label, curves), ...] for a run's monitors (each Panel is also the pair ``(label, curves)``).
 
     Tube runs: energy and mass errors, the fluid's axial momentum, Newton iterations.  Rod runs
     (they have ``frame_orthogonality``): energy error and terms, the changes of linear momentum and of
     angular momentum about the centre of mass (reactions of supports included), frame
-    orthogonality, Newton iterations.
-    """
-    def rel(y):
-        return (y - y[0]) / abs(y[0]) if y[0] != 0 else y - y[0]
+    orthogonality, Newton iterations.  The energy error is relative to :func:`energy_scale`; the changes
+    of momenta and the orthogonality defect go on log axes floored at round-off of their own size.
 
+    A single record (a static file) has no errors or changes, which are zero by definition: its panels
+    are the values at that instant (energy and its terms, the momenta, the orthogonality defect).
+    """
     def change(y):
         return np.linalg.norm(y - y[0], axis=1)
 
+    records = len(next(iter(mon.values()))) if mon else 0
+    if records == 1:
+        return _single_record_panels(mon)
     panels = []
+    if "energy" in mon:
+        scale, what = energy_scale(mon)
+        dE = mon["energy"] - mon["energy"][0]
+        if what is None:
+            panels.append(Panel("energy error E - E0 [J]", [("energy", dE)]))
+        else:
+            note = f"{what} = {scale:.3g} J"
+            if what != "|E0|":
+                note += f"\n(|E0| = {abs(mon['energy'][0]):.2g} J)"
+            panels.append(Panel(f"energy error (E - E0) / {what}", [("energy", dE / scale)], note=note))
     if "frame_orthogonality" in mon:
-        panels.append(("relative energy error", [("energy", rel(mon["energy"]))]))
-        terms = [(k.replace("energy_", ""), mon[k]) for k in ("kinetic_energy", "energy_bending_torsion", "energy_stretch_shear",
-                                                             "energy_gravity", "energy_load") if k in mon and np.any(mon[k])]
-        panels.append(("energy terms [J]", terms))
-        panels.append(("change of linear momentum [kg m/s]", [("|P - P0|", change(mon["linear_momentum"]))]))
-        if "angular_momentum_cm" in mon:
-            panels.append(("change of angular momentum [kg m2/s]", [("|J_cm - J_cm0|", change(mon["angular_momentum_cm"]))]))
-        panels.append(("frame orthogonality |L^T L - I|", [("max over nodes", mon["frame_orthogonality"])]))
+        panels.append(Panel("energy terms [J]", _energy_terms(mon)))
+        for key, label, name, sym in (("linear_momentum", "change of linear momentum [kg m/s]", "|P - P0|", "P"),
+                                      ("angular_momentum_cm", "change of angular momentum [kg m2/s]", "|J_cm - J_cm0|", "J_cm")):
+            if key not in mon:
+                continue
+            y = change(mon[key])
+            floor = log_floor(np.concatenate([np.linalg.norm(mon[key], axis=1), y]))
+            panels.append(Panel(label, [(name, y)], yscale="log" if floor else "linear", floor=floor,
+                                floor_label=f"eps max|{sym}|", skip_first=True))
+        panels.append(Panel("frame orthogonality |L^T L - I|", [("max over nodes", mon["frame_orthogonality"])],
+                            yscale="log", floor=EPS, floor_label="eps"))
     else:
-        for name, label in (("energy", "relative energy error"), ("mass", "relative mass error")):
-            if name in mon:
-                panels.append((label, [(name, rel(mon[name]))]))
+        if "mass" in mon:
+            m = mon["mass"]
+            ref = abs(m[0]) if m[0] != 0 else 1.0
+            panels.append(Panel("relative mass error (m - m0) / m0", [("mass", (m - m[0]) / ref)]))
         if "linear_momentum" in mon:
-            panels.append(("fluid momentum [kg m/s]", [("x", mon["linear_momentum"][:, 0])]))
-    if "newton_iterations" in mon:
-        panels.append(("Newton iterations", [("per step", mon["newton_iterations"])]))
+            panels.append(Panel("fluid momentum [kg m/s]", [("x", mon["linear_momentum"][:, 0])]))
+    if "newton_iterations" in mon:  # the first record has no step before it
+        panels.append(Panel("Newton iterations", [("per step", mon["newton_iterations"])], skip_first=True))
     return panels
+
+
+def _energy_terms(mon):
+    keys = ["kinetic_energy"] + sorted(k for k in mon if k.startswith("energy_"))
+    return [(_term_name(k), mon[k]) for k in keys if k in mon and np.any(mon[k])]
+
+
+def _single_record_panels(mon):
+    panels = []
+    if "energy" in mon:
+        panels.append(Panel("energy and its terms [J]", [("total", mon["energy"])] + _energy_terms(mon)))
+    for key, label, name in (("linear_momentum", "linear momentum [kg m/s]", "|P|"),
+                             ("angular_momentum_cm", "angular momentum [kg m2/s]", "|J_cm| (about the centre of mass)")):
+        if key in mon:
+            panels.append(Panel(label, [(name, np.linalg.norm(mon[key], axis=1))]))
+    if "frame_orthogonality" in mon:
+        panels.append(Panel("frame orthogonality |L^T L - I|", [("max over nodes", mon["frame_orthogonality"])]))
+    if "mass" in mon:
+        panels.append(Panel("mass [kg]", [("mass", mon["mass"])]))
+    return panels
+
+
+def undisturbed(y0, zero_if_below=1e-6):
+    """The undisturbed value of a field from its first record: the median over the tube.
+
+    A localised pulse does not move the median (the mean of a pressure pulse would); a value smaller than
+    ``zero_if_below`` times the field's range is the tails of a pulse on a state at rest, and is 0.
+    """
+    y0 = np.asarray(y0, dtype=float)
+    med = float(np.median(y0))
+    span = float(np.max(np.abs(y0 - med))) if y0.size else 0.0
+    return 0.0 if abs(med) <= zero_if_below * span else med
+
+
+def diverging_limits(y):
+    """(centre, half width) of a diverging colour scale for a field y (K, n): centred on the undisturbed
+    state (:func:`undisturbed` of the first record), symmetric, wide enough for every value."""
+    y = np.asarray(y, dtype=float)
+    ref = undisturbed(y[0])
+    half = float(np.max(np.abs(y - ref))) if y.size else 0.0
+    return ref, (half if half > 0 else 1.0)
+
+
+def rod_view_mode(amplitude, length):
+    """How to draw a centreline whose largest transverse deflection from its chord is ``amplitude``.
+
+    "true": visible at true scale (at least ``VISIBLE_FRACTION`` of ``length``): positions in metres, equal
+    axes.  "deflection": too small to see (a whirling shaft, a small vibration): the deflection itself on
+    its own scale (um, mm) against the position along the chord, magnified ``length / amplitude`` times
+    relative to true scale.  "rest": at round-off (below ``ROUNDOFF_FRACTION`` of the length): the
+    centreline does not move, and magnifying would only draw round-off.
+    """
+    if not (length > 0) or amplitude >= VISIBLE_FRACTION * length:
+        return "true"
+    return "rest" if amplitude <= ROUNDOFF_FRACTION * length else "deflection"
+
+
+def _chord_frame(r0):
+    """Unit chord e of the first record's centreline and two transverse unit vectors (e2, e3).
+
+    For a chord along +x these are +y and +z, so projections keep the lab axes' names.
+    """
+    e = r0[-1] - r0[0]
+    n = np.linalg.norm(e)
+    e = e / n if n > 0 else np.array([1.0, 0.0, 0.0])
+    up = np.array([0.0, 0.0, 1.0]) if abs(e[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e2 = np.cross(up, e)
+    e2 /= np.linalg.norm(e2)
+    return e, e2, np.cross(e, e2)
+
+
+def rod_deflection(r):
+    """Transverse deflection of the centreline from the straight chord of the first record.
+
+    ``r``: (K, N+1, 3) node positions.  The chord joins the first record's end nodes: for a rod between
+    bearings it is the bearing line, for a rod started straight it is that line.  Returns
+    ``(along, w, frame)``: the coordinate along the chord (K, N+1), the transverse deflection (K, N+1, 2)
+    in the frame's (e2, e3) components, and frame = (origin, e, e2, e3).  A rigid spin about the chord leaves
+    w = 0; a whirl of amplitude a makes |w| ~ a.
+    """
+    r = np.asarray(r, dtype=float)
+    o = r[0, 0]
+    e, e2, e3 = _chord_frame(r[0])
+    d = r - o
+    return d @ e, np.stack([d @ e2, d @ e3], axis=-1), (o, e, e2, e3)
+
+
+def section_twist(Lam):
+    """Rotation angle [rad] of each section about its own axis since the first record.
+
+    ``Lam``: (K, N+1, 3, 3) frames whose first column is the section's axis (the reference rod lies along
+    +x).  Between consecutive records the body rotation R = Lam_k^T Lam_(k+1) is split into a swing of the
+    axis and a twist about it (2 atan2(R_21 - R_12, 1 + tr R)); the twists are summed, i.e. the spin
+    rate about the axis integrated in time, which stays well defined while the axis itself swings round
+    (a tumbling rod).  Needs less than half a turn between records.  Returns (K, N+1).
+    """
+    Lam = np.asarray(Lam, dtype=float)
+    R = np.einsum("knji,knjl->knil", Lam[:-1], Lam[1:])
+    dth = 2.0 * np.arctan2(R[..., 2, 1] - R[..., 1, 2], 1.0 + np.trace(R, axis1=-2, axis2=-1))
+    return np.concatenate([np.zeros((1, Lam.shape[1])), np.cumsum(dth, axis=0)])
+
+
+# -- drawing ---------------------------------------------------------------------------------------------
+
+def _scene(run):
+    """The scene table stored in the run file (empty if absent or unreadable)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(run["attrs"].get("scene_toml", ""))
+    except (tomllib.TOMLDecodeError, TypeError):
+        return {}
+
+
+def _time_axis(t):
+    """(factor, label) showing times in s, ms or us."""
+    T = float(np.max(np.abs(t))) if len(t) else 0.0
+    if T == 0.0:
+        return 1.0, "t [s]"
+    for f, u in ((1.0, "s"), (1e3, "ms"), (1e6, "\u00b5s")):
+        if T * f >= 1.0 or f == 1e6:
+            return f, f"t [{u}]"
+    return 1.0, "t [s]"
+
+
+def _length_unit(a):
+    """(factor, unit) showing lengths of size a in m, mm, um or nm."""
+    for f, u in ((1.0, "m"), (1e3, "mm"), (1e6, "\u00b5m"), (1e9, "nm")):
+        if a * f >= 1.0:
+            return f, u
+    return 1e9, "nm"
+
+
+def _draw_monitors(plt, t, panels, title, path):
+    from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
+
+    single = len(t) == 1
+    tf, tlabel = _time_axis(t)
+    ncol = 3 if len(panels) > 4 else 2
+    nrow = max(1, math.ceil(len(panels) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(5 * ncol, 3.4 * nrow + 0.3), constrained_layout=True, squeeze=False)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    for ax, panel in zip(axes.flat, panels):
+        label, curves = panel
+        log = panel.yscale == "log" and not single
+        lows, highs = [], []
+        for name, y in curves:
+            y = np.asarray(y, dtype=float)
+            if single:  # one record (a static file): a marker per quantity, with its value
+                i = len(lows)
+                lows.append(name)
+                ax.plot([i], y[:1], "o", ms=7, color=f"C{i}")
+                ax.annotate(f"{y[0]:.4g}", (i, y[0]), xytext=(7, 0), textcoords="offset points", va="center", fontsize=8)
+                continue
+            tt = t * tf
+            if panel.skip_first and len(t) > 2:
+                tt, y = tt[1:], y[1:]
+            if log:
+                y = np.maximum(y, panel.floor)
+                lows.append(float(np.min(y)))
+                highs.append(float(np.max(y)))
+            ax.plot(tt, y, lw=1, label=name)
+        near_floor = False
+        if log:
+            ax.set_yscale("log")
+            lo, hi = min(lows), max(highs)
+            near_floor = lo < 1e3 * panel.floor  # show the round-off floor only when the data come near it
+            if near_floor:
+                ax.axhline(panel.floor, color="0.4", ls=":", lw=1,
+                           label=f"{panel.floor_label} = {panel.floor:.2g} (smaller values drawn here)")
+                lo = min(lo, panel.floor)
+            # whole decades (at least one, so there are labelled ticks), at most 5 labelled ticks
+            ax.set_ylim(10.0 ** math.floor(math.log10(lo) - 1e-9), 10.0 ** math.ceil(math.log10(hi) + 1e-9))
+            ax.yaxis.set_major_locator(LogLocator(base=10, numticks=5))
+            ax.yaxis.set_minor_formatter(NullFormatter())
+        if single:
+            ax.set_xticks(range(len(lows)), lows, fontsize=8, rotation=20 if len(lows) > 3 else 0)
+            ax.set_xlim(-0.6, len(lows) - 0.4)
+            ax.axhline(0.0, color="0.7", lw=0.8)
+        elif len(curves) > 1 or near_floor:
+            ax.legend(fontsize=7, loc="best")
+        if label.startswith("Newton") and not single:
+            ax.set_ylim(0, max(float(np.max(c[1])) for c in curves) + 1)
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        if panel.note:
+            ax.text(0.02, 0.97, panel.note, transform=ax.transAxes, va="top", ha="left", fontsize=7,
+                    bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.8", alpha=0.85))
+        ax.set_xlabel(f"at t = {t[0]:.4g} s" if single else tlabel)
+        ax.set_ylabel(label, fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.grid(alpha=0.12, which="minor") if log else None
+    fig.suptitle(title + ("\none record: the values at that instant" if single else ""), fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _tube_maps(fld, scene):
+    """[(name, symbol, unit, x (K, n), values (K, n)), ...] for the tube's fields."""
+    maps = []
+    L = float(scene.get("tube", {}).get("length", 0.0))
+    if "fluid/pressure" in fld:
+        s = fld["fluid/s"]
+        L = L or float(s[0, -1] - s[0, 0])
+        maps.append(("pressure", "p", "Pa", 0.5 * (s[:, 1:] + s[:, :-1]), fld["fluid/pressure"]))
+        maps.append(("velocity", "u", "m/s", s, fld["fluid/velocity"]))
+    if "wall/R" in fld:
+        R = fld["wall/R"]
+        x = np.linspace(0.0, L or 1.0, R.shape[1])[None, :] * np.ones((R.shape[0], 1))
+        maps.append(("wall radius", "R", "m", x, R))
+    return maps
+
+
+def _draw_tube_fields(plt, t, maps, title, path):
+    single = len(t) == 1
+    tf, tlabel = _time_axis(t)
+    fig, axes = plt.subplots(1, len(maps), figsize=(4.4 * len(maps), 4.0 if single else 4.4),
+                             constrained_layout=True, squeeze=False)
+    for ax, (name, sym, unit, x, y) in zip(axes[0], maps):
+        ref, half = diverging_limits(y)
+        f = 1.0
+        if unit == "m":  # a wall moving by a fraction of a millimetre: in mm or um
+            f, unit = _length_unit(half)
+        dy = f * (y - ref)
+        lab = f"{sym} [{unit}]" if ref == 0.0 else f"{sym} - {sym}0 [{unit}]"
+        ref_unit = "m" if f != 1.0 else unit
+        what = f"{name}; undisturbed {sym}0 = 0" if ref == 0.0 else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = 0)"
+        if single:  # one record: the profile
+            ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if x.shape[1] <= 60 else None)
+            ax.axhline(0.0, color="0.5", lw=0.8)
+            ax.set_ylabel(lab)
+            ax.grid(alpha=0.3)
+        else:
+            xg = np.linspace(np.min(x[0]), np.max(x[0]), max(200, y.shape[1]))
+            img = np.array([np.interp(xg, xi, yi) for xi, yi in zip(x, dy)])
+            vmax = f * half
+            im = ax.pcolormesh(xg, t * tf, img, shading="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+            fig.colorbar(im, ax=ax, label=lab)
+            ax.set_ylabel(tlabel)
+        ax.set_title(what, fontsize=8)
+        ax.set_xlabel("s [m]")
+    fig.suptitle(title + (f" (t = {t[0]:.4g} s)" if single else ""), fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _draw_rod_fields(plt, run, title, path):
+    from matplotlib import cm, colors
+
+    t = run["time"]
+    fld = run["fields"]
+    r = fld["rod/r"]
+    Lam = fld.get("rod/Lambda")
+    K, n = len(t), r.shape[1]
+    single = K == 1
+    scene = _scene(run)
+    rod = scene.get("rod", {})
+    L = float(scene.get("tube", {}).get("length", 0.0)) or float(np.sum(np.linalg.norm(np.diff(r[0], axis=0), axis=1)))
+    rho = float(scene.get("tube", {}).get("radius", 0.02 * L))
+    along, w, (o, e, e2, e3) = rod_deflection(r)
+    amp = float(np.max(np.linalg.norm(w, axis=-1)))
+    mode = rod_view_mode(amp, L)
+    planar = rod.get("dimension", 3 if np.ptp(r[..., 2]) > 0 else 2) == 2
+    lab = abs(e[0]) > 0.999  # chord ~ +x: its transverse directions are y and z
+    an, bn, cn = ("x", "y", "z") if lab else ("along the chord", "across 1", "across 2")
+
+    disp = np.linalg.norm(r - r[0], axis=-1)
+    moving = K > 1 and float(np.max(disp)) > ROUNDOFF_FRACTION * L
+    probe = int(np.argmax(np.max(disp, axis=0))) if moving else n // 2
+    s_of = lambda j: L * j / max(n - 1, 1)  # noqa: E731
+
+    if mode == "deflection":
+        f, u = _length_unit(amp)
+        X, Y, Z = along + o @ e, f * w[..., 0], f * w[..., 1]
+        xl, yl, zl = f"{an} [m]", f"deflection in {bn} [{u}]", f"deflection in {cn} [{u}]"
+        head = (f"deflection from the chord through the end nodes, on its own scale "
+                f"(largest {amp * f:.3g} {u} = {amp / L:.2g} L)")
+    else:
+        X, Y, Z = r[..., 0], r[..., 1], r[..., 2]
+        xl, yl, zl = "x [m]", "y [m]", "z [m]"
+        head = "true scale"
+        if mode == "rest":
+            head += f"; the centreline stays on its chord (largest deflection {amp:.2g} m)"
+    views = [(X, Y, xl, yl, "side view")]
+    if not planar:
+        if mode == "true":  # large motion: three projections of the whole centreline
+            views += [(X, Z, xl, zl, "side view"), (Y, Z, yl, zl, "end view")]
+        else:  # the node that moves most (deflection), or its section turning (rest)
+            if mode == "deflection":
+                views.append((X, Z, xl, zl, "side view"))
+            views.append((Y, Z, yl, zl, f"end view, node at s = {s_of(probe):.3g} m"))
+
+    timeseries = []
+    if moving:
+        timeseries.append("displacement")
+    twist = section_twist(Lam) if Lam is not None and K > 1 else None
+    if twist is not None and np.max(np.abs(twist)) > 1e-6:
+        timeseries.append("twist")
+
+    fig = plt.figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), constrained_layout=True)
+    top, bottom = fig.subfigures(2, 1, height_ratios=[4.3, 3.2]) if timeseries else (fig, None)
+    vax = top.subplots(1, len(views), squeeze=False, width_ratios=[1.0 if v[4].startswith("end view,") else 2.0 for v in views])[0]
+    picks = np.unique(np.linspace(0, K - 1, min(K, 8)).astype(int))
+    cmap = plt.get_cmap("viridis")
+    norm = colors.Normalize(float(t[0]), float(t[-1]) if K > 1 else float(t[0]) + 1.0)
+    colour = (lambda k: "k") if single else (lambda k: cmap(norm(t[k])))  # noqa: E731
+    for ax, (P, Q, pl, ql, name) in zip(vax, views):
+        end_view = name.startswith("end view,")
+        if end_view:
+            if mode != "deflection":  # the section of the probe node, with a mark along its d2 that turns with it
+                c = np.array([P[0, probe], Q[0, probe]])
+                ang = np.linspace(0, 2 * np.pi, 100)
+                ax.plot(c[0] + rho * np.cos(ang), c[1] + rho * np.sin(ang), color="0.6", lw=0.8, label=f"section (radius {rho:.3g} m)")
+                if Lam is not None:
+                    for k in picks:
+                        d2 = Lam[k, probe][:, 1]
+                        ax.plot([P[k, probe], P[k, probe] + rho * d2[1]], [Q[k, probe], Q[k, probe] + rho * d2[2]],
+                                color=colour(k), lw=1.5)
+                    ax.plot([], [], color="0.3", lw=1.5, label="mark on the section (d2)")
+            if moving:  # the path of the probe node through every record
+                ax.plot(P[:, probe], Q[:, probe], color="0.6", lw=0.6, label="path, all records")
+            for k in picks:
+                ax.plot(P[k, probe], Q[k, probe], "o", color=colour(k), ms=4)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.legend(fontsize=7, loc="upper right")
+        else:
+            if single and mode == "true":  # the unloaded reference: straight along +x from the first node
+                ax.plot([X[0, 0], X[0, 0] + L], [Q[0, 0], Q[0, 0]], "--", color="0.6", lw=1, label="straight, unloaded")
+            if mode == "deflection":
+                ax.axhline(0.0, color="0.6", lw=0.8, ls="--", label="chord")
+            for k in picks:
+                ax.plot(P[k], Q[k], color=colour(k), lw=1.3, marker="o" if single else None, ms=2.5,
+                        label="centreline (nodes)" if single else None)
+            if mode != "deflection":
+                ax.set_aspect("equal", adjustable="datalim")
+            if single or mode == "deflection":
+                ax.legend(fontsize=7, loc="best")
+        ax.set_xlabel(pl)
+        ax.set_ylabel(ql)
+        ax.set_title(name, fontsize=9)
+        ax.grid(alpha=0.3)
+    if not single:
+        top.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=list(vax), label="t [s]", shrink=0.9)
+    what = "centreline" if single else f"centreline at {len(picks)} times"
+    top.suptitle(f"{title}\n{what}: {head}", fontsize=9)
+
+    if timeseries:
+        tf, tlabel = _time_axis(t)
+        tax = bottom.subplots(1, len(timeseries), squeeze=False)[0]
+        for ax, kind in zip(tax, timeseries):
+            if kind == "displacement":
+                d = r[:, probe] - r[0, probe]
+                big = float(np.max(np.abs(d)))
+                f, u = _length_unit(big)
+                for i, c in enumerate("xyz"):
+                    if np.max(np.abs(d[:, i])) > 1e-3 * big:
+                        ax.plot(t * tf, d[:, i] * f, lw=1, label=c)
+                ax.set_ylabel(f"displacement [{u}]")
+                ax.set_title(f"node at s = {s_of(probe):.3g} m (largest motion), from t = 0", fontsize=9)
+            else:
+                for j in sorted({0, n // 2, n - 1}):
+                    rate = (twist[-1, j] - twist[0, j]) / (t[-1] - t[0])
+                    ax.plot(t * tf, twist[:, j], lw=1, label=f"s = {s_of(j):.3g} m (mean {rate:.3g} rad/s)")
+                ax.set_ylabel("angle [rad]")
+                ax.set_title("rotation of the sections about their own axis since t = 0", fontsize=9)
+            ax.legend(fontsize=7)
+            ax.set_xlabel(tlabel)
+            ax.grid(alpha=0.3)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def plot_run(path, outdir=None):
@@ -59,73 +523,24 @@ def plot_run(path, outdir=None):
     stem = Path(path).stem
     outdir = Path(outdir) if outdir else Path(path).resolve().parent
     outdir.mkdir(parents=True, exist_ok=True)
+    title = run["attrs"].get("title", stem)
+    if run["attrs"].get("static"):
+        title += " - static equilibrium" if "steady_rotation" not in run["attrs"] else " - steady rotation"
     written = []
+    if len(t) == 0:
+        return written
 
-    panels = monitor_panels(mon)
-    ncol = 3 if len(panels) > 4 else 2
-    fig, axes = plt.subplots(2, ncol, figsize=(5 * ncol, 6.5), constrained_layout=True)
-    for ax in axes.flat[len(panels):]:
-        ax.set_visible(False)
-    for ax, (label, curves) in zip(axes.flat, panels):
-        for name, y in curves:
-            ax.plot(t, y, lw=1, label=name)
-        if len(curves) > 1:
-            ax.legend(fontsize=7)
-        if label.startswith(("change", "frame")) and np.all(np.concatenate([c[1] for c in curves]) >= 0):
-            ax.set_yscale("symlog", linthresh=1e-16)  # round-off-sized quantities: show their decades
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    fig.suptitle(run["attrs"].get("title", stem), fontsize=10)
     p = outdir / f"{stem}_monitors.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    _draw_monitors(plt, t, monitor_panels(mon), title, p)
     written.append(p)
 
     if "rod/r" in fld:
-        r = fld["rod/r"]
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4.5), constrained_layout=True)
-        picks = np.unique(np.linspace(0, len(t) - 1, min(len(t), 8)).astype(int))
-        cmap = plt.get_cmap("viridis")
-        for i, k in enumerate(picks):
-            c = cmap(i / max(len(picks) - 1, 1))
-            axes[0].plot(r[k, :, 0], r[k, :, 1], color=c, label=f"t = {t[k]:.3g} s")
-            axes[1].plot(r[k, :, 0], r[k, :, 2], color=c)
-        for ax, lab in zip(axes, ("y", "z")):
-            ax.set_xlabel("x [m]")
-            ax.set_ylabel(f"{lab} [m]")
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.grid(alpha=0.3)
-        axes[0].legend(fontsize=7)
-        fig.suptitle("centreline snapshots", fontsize=10)
         p = outdir / f"{stem}_fields.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
+        _draw_rod_fields(plt, run, title, p)
         written.append(p)
-
-    maps = []
-    if "fluid/pressure" in fld:
-        s = fld["fluid/s"]
-        centres = 0.5 * (s[:, 1:] + s[:, :-1])
-        maps.append(("pressure [Pa]", centres, fld["fluid/pressure"]))
-        maps.append(("velocity [m/s]", s, fld["fluid/velocity"]))
-    if "wall/R" in fld:
-        R = fld["wall/R"]
-        x = np.linspace(0.0, 1.0, R.shape[1])[None, :] * np.ones((R.shape[0], 1))
-        L = float(s[0, -1] - s[0, 0]) if "fluid/s" in fld else 1.0
-        maps.append(("R - R(t=0) [m]", x * L, R - R[0]))
-    if maps and len(t) > 1:
-        fig, axes = plt.subplots(1, len(maps), figsize=(4.2 * len(maps), 4.2), constrained_layout=True, squeeze=False)
-        for ax, (label, x, y) in zip(axes[0], maps):
-            xg = np.linspace(np.min(x[0]), np.max(x[0]), max(200, y.shape[1]))
-            img = np.array([np.interp(xg, xi, yi) for xi, yi in zip(x, y)])
-            im = ax.pcolormesh(xg, t, img, shading="auto", cmap="RdBu_r")
-            fig.colorbar(im, ax=ax)
-            ax.set_title(label, fontsize=9)
-            ax.set_xlabel("s [m]")
-            ax.set_ylabel("t [s]")
+    maps = _tube_maps(fld, _scene(run))
+    if maps:
         p = outdir / f"{stem}_fields.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
+        _draw_tube_fields(plt, t, maps, title, p)
         written.append(p)
     return written
