@@ -23,6 +23,8 @@ anything past ``records`` and continues from the checkpoint.
 
 from __future__ import annotations
 
+import os
+
 import h5py
 import numpy as np
 
@@ -327,7 +329,16 @@ class RunWriter:
 
 
 def _oserr(exc):
-    return str(exc).split("(")[0].strip() or exc.__class__.__name__
+    """The reason of an h5py OSError in words (not HDF5's "Unable to synchronously ..." wording)."""
+    msg = str(exc)
+    if "unable to lock file" in msg:
+        return "the file is open in another process"
+    if "file signature not found" in msg:
+        return "not an HDF5 file"
+    if getattr(exc, "errno", None):
+        return os.strerror(exc.errno)
+    inner = msg[msg.find("(") + 1:msg.rfind(")")] if "(" in msg else msg
+    return inner.split(",")[0].strip() or exc.__class__.__name__
 
 
 def _active_checkpoint(f):
