@@ -128,6 +128,15 @@ def test_a_binary_scene_is_one_line(tmp_path, capsys):
         assert _one_error_line(capsys) == f"varint: error: {f}: not a text (UTF-8) TOML file"
 
 
+def test_unreadable_run_files_are_named_in_words(tmp_path, capsys):
+    text = tmp_path / "notes.h5"
+    text.write_text("not hdf5")
+    assert main(["info", str(text)]) == 2
+    assert _one_error_line(capsys) == f"varint: error: {text}: not a readable varint run file (not an HDF5 file)"
+    assert main(["info", str(tmp_path / "missing.h5")]) == 2
+    assert _one_error_line(capsys).endswith("(No such file or directory)")
+
+
 # -- modes -------------------------------------------------------------------------------------------
 
 

@@ -3,17 +3,16 @@
 
 from pathlib import Path
 
+import h5netcdf  # noqa: F401 - xarray's engine; both come with the test extra (pip install -e '.[test]')
 import h5py
 import numpy as np
 import pytest
+import xarray as xr
 
 from varint import parse_scene, run_scene
 from varint.io import read_run, units_of
 
 from helpers import gas_scene, to_toml
-
-xr = pytest.importorskip("xarray")
-pytest.importorskip("h5netcdf")
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
