@@ -55,6 +55,21 @@ def test_run_file_layout(tmp_path, capsys):
     assert np.all(run["monitors"]["mass"] == run["monitors"]["mass"][0])
 
 
+def test_a_run_without_fields_reads(tmp_path, capsys):
+    """output.fields = [] (monitors only): before, the file had no /fields and read_run refused it."""
+    d = gas_scene(nodes=9, parcels=8, end=3e-5)
+    d["output"] = {"every": 1, "fields": []}
+    f = tmp_path / "s.toml"
+    f.write_text(to_toml(d))
+    out = tmp_path / "mon.h5"
+    assert main(["run", str(f), "-o", str(out), "-q"]) == 0
+    run = read_run(out)
+    assert run["fields"] == {} and len(run["monitors"]["energy"]) == 4
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["records"] == 4
+
+
 def test_info_and_plot(tmp_path, capsys):
     f = _scene_file(tmp_path, end=2e-4)
     out = tmp_path / "out.h5"

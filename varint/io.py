@@ -222,6 +222,8 @@ class RunWriter:
         t.attrs["units"] = "s"
         t.make_scale("time")
         t.attrs["long_name"] = "time"
+        f.require_group("monitors")
+        f.require_group("fields")  # present even when output.fields = [] selects no group
         for name, val in monitors.items():
             self._series(f"monitors/{name}", np.asarray(val))
         for name, val in fields.items():
@@ -365,7 +367,7 @@ def read_run(path):
             for name, d in f["monitors"].items():
                 if not d.is_scale:  # /monitors/time is /time
                     out["monitors"][name] = d[:k]
-            for g in f["fields"]:
+            for g in f.get("fields", {}):  # (files written with output.fields = [] by 0.1 have none)
                 for name, d in f["fields"][g].items():
                     if not d.is_scale:
                         out["fields"][f"{g}/{name}"] = d[:k]
