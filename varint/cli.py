@@ -53,13 +53,15 @@ def _load_scene(path):
     return load_scene(path)
 
 
-def _records(path):
-    """Complete records of a run file (0 if it is none or cannot be read)."""
+def _resumable_records(path, scene):
+    """Complete records of ``scene``'s run in ``path`` (0 if it is not one, or cannot be read)."""
     import h5py
 
     try:
         with h5py.File(path, "r", locking=False) as f:
-            return 0 if f.attrs.get("static", False) else int(f.attrs.get("records", 0))
+            if f.attrs.get("static", False) or f.attrs.get("scene_toml") != scene.text:
+                return 0
+            return int(f.attrs.get("records", 0))
     except (OSError, ValueError, TypeError):
         return 0
 
@@ -73,9 +75,9 @@ def cmd_run(args):
     try:
         sim = run_scene(scene, out, resume=args.resume, progress=None if not args.quiet else False)
     except KeyboardInterrupt:
-        k = _records(out)
+        k = _resumable_records(out, scene)
         if k:
-            raise _Interrupted(f"interrupted; {out} holds {k} complete records (continue with: "
+            raise _Interrupted(f"interrupted; {out} holds {k} complete record{'s' if k > 1 else ''} (continue with: "
                                f"varint run {args.scene} -o {out} --resume)") from None
         raise
     st = sim.state
