@@ -201,7 +201,8 @@ def test_planar_free_rod_is_free():
     assert not build_model(rod_scene(nodes=11, dimension=2, ends=("pinned", "free"))).free
 
 
-# -- the PyElastica cantilever section (ANCHORS.md): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
+# -- the benchmark cantilever of scripts/bench_pyelastica.py and docs/performance.md (PyElastica's section form):
+#    L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
 
 def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):
     G = E / 1.5
@@ -344,7 +345,7 @@ def test_hard_stiff_shear_and_stretch_at_100x_the_explicit_limit():
         y.append(sim.state.q[3 * model.N + 1])
         E.append(sim.monitors()["energy"])
     E = np.array(E)
-    assert w_max * h > 199
+    assert len(f) == loaded.nz  # the whole spectrum, so w_max is the highest frequency and h is 100x the limit
     assert (E.max() - E.min()) / E[0] < 1e-4  # measured 1.1e-5
     assert np.max(np.abs(y)) < 0.17  # bounded: the tip swings between its +-0.161 m extremes
     omega = zero_crossing_frequency(np.array(t), np.array(y))
