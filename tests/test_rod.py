@@ -112,7 +112,7 @@ def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
     assert xi_max > 0.45  # genuinely large rotations per step
     assert worst["P"] < 1e-12 and worst["J"] < 1e-12, worst
     assert worst["orth"] < 1e-13, worst
-    assert worst["E"] < 0.05, worst
+    assert worst["E"] < 5e-3, worst  # measured 1.7e-3 (0.1 allowed 0.05)
 
 
 def test_free_rod_far_from_the_origin_keeps_momenta_at_round_off():
@@ -405,7 +405,8 @@ def test_cli_static_and_modes(tmp_path, capsys):
     from varint.analysis import elastica_cantilever_tip
 
     xe, ye, _ = elastica_cantilever_tip(4.0, 1.0, 1.0)  # the example's load is P L^2 / EI = 4
-    assert abs(tip[0] - xe) < 2e-3 and abs(tip[1] - ye) < 2e-3  # compliant stretch/shear of the real section
+    # the real section stretches and shears: measured 1.6e-4 and -7.6e-5 from the inextensible elastica
+    assert abs(tip[0] - xe) < 4e-4 and abs(tip[1] - ye) < 4e-4, (tip, xe, ye)
     capsys.readouterr()
     assert main(["modes", str(example), "--json", "-n", "3"]) == 0
     modes = json.loads(capsys.readouterr().out)["modes"]
