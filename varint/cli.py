@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import SceneError, VarintError
+from .errors import VarintError
 
 __all__ = ["main"]
 
@@ -41,15 +41,8 @@ class _Interrupted(Exception):
 
 
 def _load_scene(path):
-    """load_scene, with a binary file named as such (not as a decoding error)."""
     from .scene import load_scene
 
-    try:
-        Path(path).read_bytes().decode("utf-8")
-    except UnicodeDecodeError:
-        raise SceneError("not a text (UTF-8) TOML file", source=str(path)) from None
-    except OSError:
-        pass  # a missing or unreadable file: load_scene names it
     return load_scene(path)
 
 

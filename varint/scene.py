@@ -222,10 +222,12 @@ def load_scene(path):
     """Read and validate a scene file.  Raises :class:`SceneError`."""
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8")  # TOML is UTF-8 whatever the locale
     except FileNotFoundError:
         raise SceneError("no such file", source=str(path)) from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise SceneError("not a text (UTF-8) TOML file", source=str(path)) from None
+    except (IsADirectoryError, PermissionError) as exc:
         raise SceneError(f"cannot read: {exc.__class__.__name__}", source=str(path)) from None
     return parse_scene(text, source=str(path))
 
