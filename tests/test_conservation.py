@@ -1,4 +1,4 @@
-"""Conservation laws of the discrete flow: energy (bounded, no drift), mass, entropy, momentum, volumes."""
+"""Conservation laws of the discrete flow: energy (bounded; the 10^5-step drift run is scripts/slosh_long_run.py), mass, entropy, momentum and per-label momentum balance, volumes."""
 
 import numpy as np
 import pytest
