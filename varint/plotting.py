@@ -21,7 +21,7 @@ import numpy as np
 
 from .io import read_run
 
-__all__ = ["plot_run", "monitor_panels", "Panel", "energy_scale", "log_floor", "undisturbed", "diverging_limits",
+__all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor", "undisturbed", "diverging_limits",
            "rod_deflection", "rod_view_mode", "section_twist"]
 
 EPS = np.finfo(float).eps
@@ -271,14 +271,16 @@ def _length_unit(a):
     return 1e9, "nm"
 
 
-def _draw_monitors(plt, t, panels, title, path):
+def _monitors_figure(t, panels, title):
+    from matplotlib.figure import Figure
     from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
     single = len(t) == 1
     tf, tlabel = _time_axis(t)
     ncol = 3 if len(panels) > 4 else 2
     nrow = max(1, math.ceil(len(panels) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(5 * ncol, 3.4 * nrow + 0.3), constrained_layout=True, squeeze=False)
+    fig = Figure(figsize=(5 * ncol, 3.4 * nrow + 0.3), layout="constrained")
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     for ax in axes.flat[len(panels):]:
         ax.set_visible(False)
     for ax, panel in zip(axes.flat, panels):
@@ -331,8 +333,7 @@ def _draw_monitors(plt, t, panels, title, path):
         ax.grid(alpha=0.3)
         ax.grid(alpha=0.12, which="minor") if log else None
     fig.suptitle(title + ("\none record: the values at that instant" if single else ""), fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _tube_maps(fld, scene):
@@ -351,11 +352,13 @@ def _tube_maps(fld, scene):
     return maps
 
 
-def _draw_tube_fields(plt, t, maps, title, path):
+def _tube_figure(t, maps, title):
+    from matplotlib.figure import Figure
+
     single = len(t) == 1
     tf, tlabel = _time_axis(t)
-    fig, axes = plt.subplots(1, len(maps), figsize=(4.4 * len(maps), 4.0 if single else 4.4),
-                             constrained_layout=True, squeeze=False)
+    fig = Figure(figsize=(4.4 * len(maps), 4.0 if single else 4.4), layout="constrained")
+    axes = fig.subplots(1, len(maps), squeeze=False)
     for ax, (name, sym, unit, x, y) in zip(axes[0], maps):
         ref, half = diverging_limits(y)
         f = 1.0
@@ -364,7 +367,7 @@ def _draw_tube_fields(plt, t, maps, title, path):
         dy = f * (y - ref)
         lab = f"{sym} [{unit}]" if ref == 0.0 else f"{sym} - {sym}0 [{unit}]"
         ref_unit = "m" if f != 1.0 else unit
-        what = f"{name}; undisturbed {sym}0 = 0" if ref == 0.0 else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = 0)"
+        what = f"{name}; undisturbed {sym}0 = 0" if ref == 0.0 else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = {t[0]:.3g} s)"
         if single:  # one record: the profile
             ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if x.shape[1] <= 60 else None)
             ax.axhline(0.0, color="0.5", lw=0.8)
@@ -380,12 +383,12 @@ def _draw_tube_fields(plt, t, maps, title, path):
         ax.set_title(what, fontsize=8)
         ax.set_xlabel("s [m]")
     fig.suptitle(title + (f" (t = {t[0]:.4g} s)" if single else ""), fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def _draw_rod_fields(plt, run, title, path):
-    from matplotlib import cm, colors
+def _rod_figure(run, title):
+    from matplotlib import cm, colormaps, colors
+    from matplotlib.figure import Figure
 
     t = run["time"]
     fld = run["fields"]
@@ -437,11 +440,11 @@ def _draw_rod_fields(plt, run, title, path):
     if twist is not None and np.max(np.abs(twist)) > 1e-6:
         timeseries.append("twist")
 
-    fig = plt.figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), constrained_layout=True)
+    fig = Figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), layout="constrained")
     top, bottom = fig.subfigures(2, 1, height_ratios=[4.3, 3.2]) if timeseries else (fig, None)
     vax = top.subplots(1, len(views), squeeze=False, width_ratios=[1.0 if v[4].startswith("end view,") else 2.0 for v in views])[0]
     picks = np.unique(np.linspace(0, K - 1, min(K, 8)).astype(int))
-    cmap = plt.get_cmap("viridis")
+    cmap = colormaps["viridis"]
     norm = colors.Normalize(float(t[0]), float(t[-1]) if K > 1 else float(t[0]) + 1.0)
     colour = (lambda k: "k") if single else (lambda k: cmap(norm(t[k])))  # noqa: E731
     for ax, (P, Q, pl, ql, name) in zip(vax, views):
@@ -506,41 +509,46 @@ def _draw_rod_fields(plt, run, title, path):
             ax.legend(fontsize=7)
             ax.set_xlabel(tlabel)
             ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def _title(run):
+    title = str(run["attrs"].get("title", "")) or "varint run"
+    if run["attrs"].get("static"):
+        spin = run["attrs"].get("steady_rotation")
+        title += (f" - steady rotation at {np.round(np.asarray(spin, dtype=float), 6).tolist()} rad/s" if spin is not None
+                  else " - static equilibrium")
+    return title
+
+
+def monitors_figure(run):
+    """matplotlib Figure of a run's monitors (``run`` as :func:`varint.io.read_run` returns it), or None."""
+    if len(run["time"]) == 0 or not run["monitors"]:
+        return None
+    return _monitors_figure(run["time"], monitor_panels(run["monitors"]), _title(run))
+
+
+def fields_figure(run):
+    """matplotlib Figure of a run's fields (rod centreline, or the tube's p, u, R), or None."""
+    if len(run["time"]) == 0:
+        return None
+    if "rod/r" in run["fields"]:
+        return _rod_figure(run, _title(run))
+    maps = _tube_maps(run["fields"], _scene(run))
+    return _tube_figure(run["time"], maps, _title(run)) if maps else None
 
 
 def plot_run(path, outdir=None):
     """Write ``<stem>_monitors.png`` and ``<stem>_fields.png``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     run = read_run(path)
-    t = run["time"]
-    mon, fld = run["monitors"], run["fields"]
     stem = Path(path).stem
     outdir = Path(outdir) if outdir else Path(path).resolve().parent
     outdir.mkdir(parents=True, exist_ok=True)
-    title = run["attrs"].get("title", stem)
-    if run["attrs"].get("static"):
-        title += " - static equilibrium" if "steady_rotation" not in run["attrs"] else " - steady rotation"
     written = []
-    if len(t) == 0:
-        return written
-
-    p = outdir / f"{stem}_monitors.png"
-    _draw_monitors(plt, t, monitor_panels(mon), title, p)
-    written.append(p)
-
-    if "rod/r" in fld:
-        p = outdir / f"{stem}_fields.png"
-        _draw_rod_fields(plt, run, title, p)
-        written.append(p)
-    maps = _tube_maps(fld, _scene(run))
-    if maps:
-        p = outdir / f"{stem}_fields.png"
-        _draw_tube_fields(plt, t, maps, title, p)
-        written.append(p)
+    for kind, make in (("monitors", monitors_figure), ("fields", fields_figure)):
+        fig = make(run)
+        if fig is not None:
+            p = outdir / f"{stem}_{kind}.png"
+            fig.savefig(p, dpi=110)
+            written.append(p)
     return written
