@@ -21,8 +21,8 @@ import numpy as np
 
 from .io import read_run
 
-__all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor", "undisturbed", "diverging_limits",
-           "rod_deflection", "rod_view_mode", "section_twist"]
+__all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor",
+           "undisturbed", "diverging_limits", "rod_deflection", "rod_view_mode", "section_twist"]
 
 EPS = np.finfo(float).eps
 
@@ -367,7 +367,8 @@ def _tube_figure(t, maps, title):
         dy = f * (y - ref)
         lab = f"{sym} [{unit}]" if ref == 0.0 else f"{sym} - {sym}0 [{unit}]"
         ref_unit = "m" if f != 1.0 else unit
-        what = f"{name}; undisturbed {sym}0 = 0" if ref == 0.0 else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = {t[0]:.3g} s)"
+        what = (f"{name}; undisturbed {sym}0 = 0" if ref == 0.0
+                else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = {t[0]:.3g} s)")
         if single:  # one record: the profile
             ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if x.shape[1] <= 60 else None)
             ax.axhline(0.0, color="0.5", lw=0.8)
@@ -442,7 +443,8 @@ def _rod_figure(run, title):
 
     fig = Figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), layout="constrained")
     top, bottom = fig.subfigures(2, 1, height_ratios=[4.3, 3.2]) if timeseries else (fig, None)
-    vax = top.subplots(1, len(views), squeeze=False, width_ratios=[1.0 if v[4].startswith("end view,") else 2.0 for v in views])[0]
+    widths = [1.0 if v[4].startswith("end view,") else 2.0 for v in views]
+    vax = top.subplots(1, len(views), squeeze=False, width_ratios=widths)[0]
     picks = np.unique(np.linspace(0, K - 1, min(K, 8)).astype(int))
     cmap = colormaps["viridis"]
     norm = colors.Normalize(float(t[0]), float(t[-1]) if K > 1 else float(t[0]) + 1.0)
@@ -453,7 +455,8 @@ def _rod_figure(run, title):
             if mode != "deflection":  # the section of the probe node, with a mark along its d2 that turns with it
                 c = np.array([P[0, probe], Q[0, probe]])
                 ang = np.linspace(0, 2 * np.pi, 100)
-                ax.plot(c[0] + rho * np.cos(ang), c[1] + rho * np.sin(ang), color="0.6", lw=0.8, label=f"section (radius {rho:.3g} m)")
+                ax.plot(c[0] + rho * np.cos(ang), c[1] + rho * np.sin(ang), color="0.6", lw=0.8,
+                        label=f"section (radius {rho:.3g} m)")
                 if Lam is not None:
                     for k in picks:
                         d2 = Lam[k, probe][:, 1]
