@@ -19,6 +19,12 @@ __all__ = ["NewtonResult", "newton", "factorize"]
 EPS = np.finfo(float).eps
 #: contraction rate above which the Jacobian is refreshed (a chord iteration that slow costs more than an LU)
 RATE_REFRESH = 0.2
+#: an update at least this fraction of the previous one has stopped contracting
+STAGNATION_RATE = 0.5
+#: updates within this factor of eps * max|state / scale| may be round-off (the measured floor of the tube's
+#: step is 0.02-2 times eps max|state / scale| for 10^3-10^5 parcels and c h / ds = 0.2-17: a fraction of
+#: an ulp of the absolute label positions, times the step's stiffness-to-mass ratio)
+ROUNDOFF_BAND = 100.0
 
 
 @dataclass
@@ -61,7 +67,7 @@ def _singular(J):
 
 
 def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refresh=RATE_REFRESH,
-           chord_iterations=5, polish=0):
+           chord_iterations=5, polish=0, offset=None):
     """Solve residual(z) = 0 from z0.
 
     Parameters
@@ -70,8 +76,13 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
     jacobian : callable z -> sparse matrix
     scale : ndarray
         Typical magnitude of each unknown; convergence is ``max|dz/scale| <= tol``,
-        or the update has reached round-off (``<= 8 eps max|z/scale|``, or it stagnates
-        below ``100 tol`` with a fresh Jacobian).
+        or the update has reached round-off: ``<= 8 eps max|z/scale|``; or it stagnates
+        below ``100 tol`` with a fresh Jacobian; or it stops contracting (an update at least
+        half the previous one after a contracting one) within ``ROUNDOFF_BAND`` of the
+        round-off floor ``eps max((|z| + |offset|) / scale)``.  A chord iteration contracts
+        at a steady rate, so an update that suddenly stops shrinking that close to the floor is
+        round-off, not a stale Jacobian: no refactorisation is spent on it.  Divergence (updates
+        growing three times in a row) is still reported, whatever their size.
     factor : object, optional
         A factorisation from an earlier call, reused until the rate degrades.
     rate_refresh : float
@@ -85,8 +96,13 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
         smaller than the previous one (i.e. until the round-off floor).  The error left in a step's momentum
         balance is the final residual, and it accumulates over a long run; polishing makes it
         round-off instead of tolerance-sized, at the cost of a few residuals (no Jacobian).
+    offset : ndarray, optional
+        Where the unknowns are displacements, the absolute values the residual evaluates
+        (``offset + z``, e.g. label positions along the tube): its round-off is relative to
+        those, so the update cannot get below ``~eps |offset + z|``.  Default: zero.
     """
     z = np.array(z0, dtype=np.float64, copy=True)
+    mag = np.zeros_like(z) if offset is None else np.abs(np.asarray(offset, dtype=np.float64))
     n_res = n_jac = 0
     jac_iter = None  # iteration at which the factorisation in use was computed (None: inherited)
     if factor is None:
@@ -98,6 +114,7 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
             return NewtonResult(False, z, 0, np.inf, np.nan, None, n_res, n_jac, _singular(J))
     err_prev = None
     rate = np.nan
+    rate_prev = np.nan  # the contraction rate of the previous update on this factorisation
     it = 0
     err = np.inf
     n_growing = 0  # consecutive growing updates
@@ -127,9 +144,14 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
             slow_inherited = jac_iter is None and it >= chord_iterations  # an old Jacobian needing many iterations
             if not np.isfinite(rate) or rate > rate_refresh or slow_inherited:
                 recent = jac_iter is not None and jac_iter >= it - 2
+                roundoff = ROUNDOFF_BAND * EPS * float(np.max((np.abs(z) + mag) / scale))
                 if recent and err <= 100 * tol:
                     # stagnating just above tol with an up-to-date Jacobian: round-off of an ill-conditioned system
                     return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stagnated at round-off")
+                if STAGNATION_RATE <= rate and err <= roundoff and rate_prev <= rate_refresh:
+                    # the chord was contracting and the update stopped shrinking near the floor of the
+                    # state's round-off: the state cannot resolve a smaller update, a new Jacobian would not help
+                    return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stopped at the round-off floor")
                 growing = not np.isfinite(rate) or rate >= 1.0
                 n_growing = n_growing + 1 if growing else 0
                 if n_growing >= 3:
@@ -141,9 +163,11 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
                     n_jac += 1
                     jac_iter = it
                     err_prev = None
+                    rate_prev = np.nan
                     if factor is None:
                         return NewtonResult(False, z, it, err, rate, None, n_res, n_jac, _singular(J))
                     continue
+            rate_prev = rate
         err_prev = err
     return NewtonResult(False, z, it, err, rate, factor, n_res, n_jac, "no convergence within max_iterations")
 

@@ -178,6 +178,8 @@ class Simulation:
         self.stats = StepStats()
         self._factor = None
         self.scale = self._scales()
+        #: the unknowns are displacements from c0: the residual's round-off is relative to |c0 + z|
+        self.offset = np.asarray(abs(model.B).T @ np.abs(model.c0)).ravel()
 
     def _scales(self):
         m = self.model
@@ -218,7 +220,7 @@ class Simulation:
             iters, nres, njac = 1, 1, 0
         else:
             res = newton(lambda z: sch.residual(st.q, st.p, z), lambda z: sch.jacobian(st.q, z), z0, self.scale,
-                         self.tol, self.max_iter, self._factor)
+                         self.tol, self.max_iter, self._factor, offset=self.offset)
             if not res.converged:
                 self._factor = None
                 # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
