@@ -62,11 +62,22 @@ def label_problem(s, nR, ds, periodic, tube=True):
     s = np.asarray(s, dtype=np.float64)
     if s.ndim != 1 or len(s) < 2:
         return 0, f"need at least two labels, got shape {s.shape}"
+    L = ds * (nR if periodic else nR - 1)
+    # fast path (every residual passes here): increasing labels with valid ends are valid throughout
+    # (a NaN anywhere makes the minimum NaN, an infinite label an infinite end or a non-positive difference)
+    if np.diff(s).min() > 0:
+        if not tube:
+            if math.isfinite(s[0]) and math.isfinite(s[-1]):
+                return None
+        elif periodic:
+            if abs((s[-1] - s[0]) - L) <= 16 * EPS * max(L, abs(s[0]), abs(s[-1])):
+                return None
+        elif -8 * EPS * L <= s[0] and s[-1] <= L + 8 * EPS * L:
+            return None
     bad = ~np.isfinite(s)
     if bad.any():
         k = int(np.argmax(bad))
         return k, f"label {k} is not finite"
-    L = ds * (nR if periodic else nR - 1)
     if tube and not periodic:
         tol = 8 * EPS * L
         out = (s < -tol) | (s > L + tol)
@@ -89,18 +100,22 @@ def _valid(s, R, ds, periodic):
     return label_problem(s, len(R), ds, periodic, tube=False) is None
 
 
-def parcel_volumes(s, R, ds, periodic):
-    """Volumes ``V`` (M,) of the parcels between labels ``s`` (M+1,); NaN if the labels are not finite and increasing."""
+def parcel_volumes(s, R, ds, periodic, check=True):
+    """Volumes ``V`` (M,) of the parcels between labels ``s`` (M+1,); NaN if the labels are not finite and increasing.
+
+    ``check=False`` skips that test (for callers that have checked the labels already; the kernel
+    itself still gives NaN, never an out-of-bounds access, for a folded parcel).
+    """
     s = np.ascontiguousarray(s, dtype=np.float64)
     V = np.empty(len(s) - 1)
-    if not _valid(s, R, ds, periodic):
+    if check and not _valid(s, R, ds, periodic):
         V[:] = np.nan
         return V
     _volumes(s, np.ascontiguousarray(R, dtype=np.float64), ds, periodic, V)
     return V
 
 
-def parcel_derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
+def parcel_derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian, check=True):
     """Weighted derivatives of the parcel volumes.
 
     Returns ``(gs, gR, hess, jac)`` where ``gs = sum_k c1_k dV_k/ds``,
@@ -110,7 +125,8 @@ def parcel_derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     With ``want_R`` false the nodal radii are treated as data.
 
     Labels that are not finite and increasing (:func:`label_problem` with ``tube=False``) give NaN gradients and NaN on the
-    labels' diagonal of ``hess`` and ``jac``, without calling the kernel.
+    labels' diagonal of ``hess`` and ``jac``, without calling the kernel (``check=False``: as
+    :func:`parcel_volumes`).
     """
     s = np.ascontiguousarray(s, dtype=np.float64)
     R = np.ascontiguousarray(R, dtype=np.float64)
@@ -119,7 +135,7 @@ def parcel_derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     M = len(s) - 1
     if c1.shape != (M,) or c2.shape != (M,):
         raise ValueError(f"parcel_derivatives: c1 and c2 need shape ({M},), got {c1.shape} and {c2.shape}")
-    if not _valid(s, R, ds, periodic):
+    if check and not _valid(s, R, ds, periodic):
         nan = np.full(len(s), np.nan)
         lab = np.arange(len(s), dtype=np.int64)
         par = np.arange(M, dtype=np.int64)

@@ -56,7 +56,12 @@ def _coo_empty():
 
 
 class _ParcelTerm(Term):
-    """Shared access to the parcel volumes (cached per configuration)."""
+    """Shared access to the parcel volumes (cached per configuration).
+
+    The labels are checked once per evaluation by :class:`varint.model.Model` (which returns NaN for a
+    folded lattice before any term runs), so the terms call the kernels unchecked; the kernels stay in
+    bounds whatever the labels.
+    """
 
     def __init__(self, geom):
         self.geom = geom  # (ds, periodic, R_is_unknown)
@@ -64,7 +69,7 @@ class _ParcelTerm(Term):
     def volumes(self, cfg, cache):
         if "V" not in cache:
             ds, periodic, _ = self.geom
-            cache["V"] = parcel_volumes(cfg.s, cfg.R, ds, periodic)
+            cache["V"] = parcel_volumes(cfg.s, cfg.R, ds, periodic, check=False)
         return cache["V"]
 
 
@@ -91,7 +96,7 @@ class InternalEnergy(_ParcelTerm):
     def gradient(self, cfg, cache, gs, gR, gmu):
         ds, periodic, want_R = self.geom
         d1, d2 = self._coeffs(cfg, cache)
-        a, b, _, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, d1, d2, want_R, False)
+        a, b, _, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, d1, d2, want_R, False, check=False)
         gs += a
         if want_R:
             gR += b
@@ -99,7 +104,7 @@ class InternalEnergy(_ParcelTerm):
     def hessian(self, cfg, cache, index):
         ds, periodic, want_R = self.geom
         d1, d2 = self._coeffs(cfg, cache)
-        _, _, H, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, d1, d2, want_R, True)
+        _, _, H, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, d1, d2, want_R, True, check=False)
         return H
 
 
@@ -125,7 +130,7 @@ class Incompressibility(_ParcelTerm):
     def gradient(self, cfg, cache, gs, gR, gmu):
         ds, periodic, want_R = self.geom
         zero = np.zeros_like(cfg.mu)
-        a, b, _, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, -cfg.mu, zero, want_R, False)
+        a, b, _, _ = parcel_derivatives(cfg.s, cfg.R, ds, periodic, -cfg.mu, zero, want_R, False, check=False)
         gs += a
         if want_R:
             gR += b
@@ -134,7 +139,7 @@ class Incompressibility(_ParcelTerm):
     def hessian(self, cfg, cache, index):
         ds, periodic, want_R = self.geom
         zero = np.zeros_like(cfg.mu)
-        _, _, (r, c, v), (jr, jc, jv) = parcel_derivatives(cfg.s, cfg.R, ds, periodic, -cfg.mu, zero, want_R, True)
+        _, _, (r, c, v), (jr, jc, jv) = parcel_derivatives(cfg.s, cfg.R, ds, periodic, -cfg.mu, zero, want_R, True, check=False)
         jr = jr + index["mu"]
         return (np.concatenate([r, jr, jc]), np.concatenate([c, jc, jr]), np.concatenate([v, -jv, -jv]))
 
