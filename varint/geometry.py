@@ -205,27 +205,24 @@ def parcel_volumes_reference(s, R, ds, periodic):
 
 @njit(cache=True, inline="always")
 def _locate(x, ds, nR, periodic):
-    """Element index (unwrapped for periodic tubes) and local coordinate t of x.
+    """Element index (unwrapped for periodic tubes), local coordinate t of x, and whether x can be located.
 
     A closed tube's index is clamped to its elements (labels beyond the ends extrapolate the
-    end element); a non-finite or astronomically far x gets element 0 (its parcel is flagged
-    invalid by :func:`_parcel_ok`).
+    end element); a non-finite or astronomically far x gets element 0 and ``False``.
     """
     u = x / ds
     if not (abs(u) < _MAX_ELEMENTS):
-        return 0, 0.0
+        return 0, 0.0, False
     e = math.floor(u)
     if not periodic:
         e = min(max(e, 0), nR - 2)
-    return e, u - e
+    return e, u - e, True
 
 
 @njit(cache=True, inline="always")
-def _parcel_ok(x0, x1, e0, e1, ds, nR, periodic):
-    """A parcel the kernels can integrate: finite labels in order, spanning at most one period."""
-    if not (abs(x0 / ds) < _MAX_ELEMENTS and abs(x1 / ds) < _MAX_ELEMENTS):
-        return False
-    if not (x1 >= x0) or e1 < e0:
+def _parcel_ok(x0, x1, e0, e1, ok0, ok1, nR, periodic):
+    """A parcel the kernels can integrate: located labels in order, spanning at most one period."""
+    if not (ok0 and ok1 and x1 >= x0 and e1 >= e0):
         return False
     return not (periodic and e1 - e0 > nR)
 
@@ -257,10 +254,11 @@ def _volumes(s, R, ds, periodic, V):
     _check_shapes(s.shape[0], nR, periodic, ds)
     if V.shape[0] < s.shape[0] - 1:
         raise ValueError("parcel kernels: V is shorter than the number of parcels")
+    e1, t1, ok1 = _locate(s[0], ds, nR, periodic)
     for k in range(s.shape[0] - 1):
-        e0, t0 = _locate(s[k], ds, nR, periodic)
-        e1, t1 = _locate(s[k + 1], ds, nR, periodic)
-        if not _parcel_ok(s[k], s[k + 1], e0, e1, ds, nR, periodic):
+        e0, t0, ok0 = e1, t1, ok1  # each label is located once
+        e1, t1, ok1 = _locate(s[k + 1], ds, nR, periodic)
+        if not _parcel_ok(s[k], s[k + 1], e0, e1, ok0, ok1, nR, periodic):
             V[k] = np.nan
             continue
         v = 0.0
@@ -355,10 +353,12 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     nh = 0
     nj = 0
     nmax = 4
+    ea, ta, oka = _locate(s[0], ds, nR, periodic)
     for k in range(M):
-        e0, t0 = _locate(s[k], ds, nR, periodic)
-        e1, t1 = _locate(s[k + 1], ds, nR, periodic)
-        ok[k] = _parcel_ok(s[k], s[k + 1], e0, e1, ds, nR, periodic)
+        e0, t0, ok0 = ea, ta, oka  # each label is located once
+        e1, t1, ok1 = _locate(s[k + 1], ds, nR, periodic)
+        ea, ta, oka = e1, t1, ok1
+        ok[k] = _parcel_ok(s[k], s[k + 1], e0, e1, ok0, ok1, nR, periodic)
         if not ok[k]:  # a NaN block on one element keeps every index in range
             e1 = e0
         e0s[k], e1s[k], t0s[k], t1s[k] = e0, e1, t0, t1
@@ -386,14 +386,11 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
         e0, e1, t0, t1 = e0s[k], e1s[k], t0s[k], t1s[k]
         nfull = 2 + e1 - e0 + 2
         gl = g[:nfull]
-        Hl = H[:nfull, :nfull]
         if ok[k]:
             r0, r1, a0, b0, a1, b1 = _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, gl)
-            if want_hessian:
-                _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
         else:
             gl[:] = np.nan
-            Hl[:, :] = np.nan
+            r0 = r1 = a0 = b0 = a1 = b1 = np.nan
         idx[0] = k
         idx[1] = k + 1
         for i in range(2, nfull):
@@ -404,6 +401,11 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
             for i in range(2, nfull):
                 gR[idx[i] - nlab] += c1[k] * gl[i]
         if want_hessian:
+            Hl = H[:nfull, :nfull]
+            if ok[k]:
+                _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
+            else:
+                Hl[:, :] = np.nan
             nl = nfull if want_R else 2
             for i in range(nl):
                 jrows[pj] = k
