@@ -20,32 +20,42 @@ PULSE = lambda L: [{"field": "pressure", "shape": "gaussian", "amplitude": 2e3, 
 
 
 def time_steps(model, n_min=5, seconds=1.5):
+    """Mean wall time per step after the first (compilation, first Jacobian), Newton iterations per step
+    and Jacobian factorisations per step over the timed steps."""
     sim = Simulation(model)
     sim.step()  # compile / first Jacobian
+    it0, jac0 = sim.stats.total_iterations, sim.stats.total_jacobians
     n, t0 = 0, time.perf_counter()
     while n < n_min or time.perf_counter() - t0 < seconds:
         sim.step()
         n += 1
     dt = (time.perf_counter() - t0) / n
-    return dt, sim.stats.total_iterations / (n + 1), sim.stats.total_jacobians
+    return dt, (sim.stats.total_iterations - it0) / n, (sim.stats.total_jacobians - jac0) / n
+
+
+SIZES = (100, 1000, 3000, 10_000, 30_000, 100_000)
 
 
 def scaling():
     print("\n### Cost per step against the number of parcels (nodes = parcels + 1, h = 0.2 Δs / c)\n")
-    print("| parcels | scheme | wall | µs/step | steps/s | Newton it./step | µs per parcel-step |")
-    print("|---|---|---|---|---|---|---|")
+    print("| parcels | scheme | wall | µs/step | steps/s | Newton it./step | Jacobians/step | µs per parcel-step |")
+    print("|---|---|---|---|---|---|---|---|")
     rows = []
-    for M in (100, 1000, 10_000, 100_000):
+    for M in SIZES:
         for scheme, wall in (("midpoint", True), ("trapezoidal", True), ("midpoint", False)):
             h = 0.2 * (1.0 / M) / 340.0
             _, model = make(gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0), scheme=scheme, wall=wall))
-            dt, its, _ = time_steps(model)
+            dt, its, jacs = time_steps(model)
             rows.append((M, scheme, wall, dt))
-            print(f"| {M} | {scheme} | {'dynamic' if wall else 'rigid'} | {dt * 1e6:.0f} | {1 / dt:.0f} | {its:.2f} | {dt * 1e6 / M:.3f} |")
+            print(f"| {M} | {scheme} | {'dynamic' if wall else 'rigid'} | {dt * 1e6:.0f} | {1 / dt:.0f} | {its:.2f} | "
+                  f"{jacs:.2f} | {dt * 1e6 / M:.3f} |", flush=True)
     for scheme, wall in (("midpoint", True), ("trapezoidal", True), ("midpoint", False)):
         pts = [(M, dt) for M, s, w, dt in rows if s == scheme and w == wall and M >= 1000]
         slope = np.polyfit(np.log([p[0] for p in pts]), np.log([p[1] for p in pts]), 1)[0]
-        print(f"\ncost slope d log(time) / d log(parcels), {scheme}, {'dynamic' if wall else 'rigid'} wall, 10³–10⁵: **{slope:.2f}**")
+        steps = "; ".join(f"{b[0]:.0e}->{a[0]:.0e}: {math.log(a[1] / b[1]) / math.log(a[0] / b[0]):.2f}"
+                          for b, a in zip(pts[:-1], pts[1:]))
+        print(f"\ncost slope d log(time) / d log(parcels), {scheme}, {'dynamic' if wall else 'rigid'} wall, "
+              f"10³–10⁵: **{slope:.2f}** (between neighbours: {steps})")
 
 
 def newton_vs_h():
