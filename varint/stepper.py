@@ -226,7 +226,8 @@ class Simulation:
                 # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
                 problem = m.label_problem(self._step_config(st.q, res.z))
                 if problem is not None:
-                    raise self._folded(n1, problem, f"in Newton iterate {res.iterations}")
+                    where = f"in Newton iterate {res.iterations}" if res.iterations else "in the predictor (last velocity extrapolated)"
+                    raise self._folded(n1, problem, where)
                 raise SolverError(
                     f"Newton failed at {self._where(n1)}: {res.message}; "
                     f"scaled update {res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; "
