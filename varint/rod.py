@@ -13,14 +13,16 @@ Discrete Lagrangian of a step (docs/theory.md §9), a sum over elements e = (j, 
     rm_j = (r_j^n + r_j^{n+1}) / 2,   mu_e = |Ga_e| (the paper's measure) or 1 (reference-length measure)
 
 Its derivatives with respect to the Lie-group variations Lambda -> Lambda cay(eps sigma),
-r -> r + eps dr are computed by complex-step differentiation, exact to round-off (every operation
-above is real-analytic); the step solves, in position-momentum form,
+r -> r + eps dr are element-local and exact: ``_k_element`` returns an element's L_d and its analytic
+gradient at both levels (dcay^-1 formulas, docs/theory.md §9); the step solves, in position-momentum form,
 
     pi_n + D1 L_d(q_n, q_{n+1}) + f^-_n = 0,       pi_{n+1} = D2 L_d(q_n, q_{n+1}) + f^+_n,
 
 where pi = (p, Pi) are the linear (spatial) and angular (body) momenta and f^± = (h/2)(0, Lambda^T T)
-the tip torque by Lagrange-d'Alembert.  Newton uses a colour-grouped finite-difference Jacobian of
-that exact residual, factorised once and reused.
+the tip torque by Lagrange-d'Alembert.  Newton's Jacobian is assembled from element blocks, each the
+complex step of the analytic element gradient (``_k_step_blocks``: exact to round-off, block
+tridiagonal in nodes); statics and modes use the same for the Hessian of the potential
+(``_k_static_blocks``).  The complex step of the whole L_d (``_k_pieces``) is kept as the tested reference.
 """
 
 from __future__ import annotations
@@ -41,7 +43,8 @@ __all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "banded_jac
 
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
-#: a rod Jacobian costs about 40 residuals: tolerate slow chord iterations.  (Iterating them to
+#: tolerate slow chord iterations (a finite-difference Jacobian cost about 40 residuals; the exact one,
+#: docs/performance.md, about 4).  (Iterating them to
 #: tol 1e-14 was tried: below the round-off floor of a stiff rod's step, ~2e-13 at cond(J) = 5e5, it
 #: stalled a 10^6-step run at step 61536.)
 RATE_REFRESH_ROD = 0.5
@@ -297,8 +300,88 @@ class RodModel:
             self._plan = (sig, dr, colour, direction)
         return self._plan
 
+    def _consts(self, load_factor=1.0):
+        """Section and load arrays of the exact kernels (built once per load factor)."""
+        c = getattr(self, "_exact_consts", None)
+        if c is None or c[0] != load_factor:
+            sec = self.section
+            c = (load_factor, sec.rhoA, np.ascontiguousarray(sec.inertia, dtype=float), np.ascontiguousarray(sec.J, dtype=float),
+                 np.ascontiguousarray(sec.K, dtype=float), load_factor * self.g, load_factor * self.force)
+            self._exact_consts = c
+        return c
+
+    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0):
+        """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
+        element gradients (``_k_element``; docs/theory.md §9), and the value of L_d."""
+        _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
+        D1 = np.empty((self.N + 1, 6))
+        D2 = np.empty((self.N + 1, 6))
+        f8 = np.float64
+        try:
+            L = _k_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure,
+                            np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), D1, D2)
+        except ZeroDivisionError:
+            # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
+            # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
+            D1[:] = np.nan
+            D2[:] = np.nan
+            L = np.nan
+        return D1, D2, L
+
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
-        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact by complex step."""
+        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact (analytic element gradients)."""
+        return self.gradients(h, Lam_n, r_n, xi, r_1, load_factor)[level]
+
+    def _block_pattern(self):
+        """Rows, columns (on the mask) and kept entries of the element blocks (N, 12, 12), built once."""
+        if getattr(self, "_pattern", None) is None:
+            N = self.N
+            idx = np.full((N + 1) * 6, -1)
+            idx[self.mask.ravel()] = np.arange(self.nz)
+            e = np.arange(N)[:, None]
+            loc = np.arange(12)[None, :]
+            glob = (e + loc // 6) * 6 + loc % 6  # (N, 12) full index of each block row/column
+            rows = np.broadcast_to(idx[glob][:, :, None], (N, 12, 12)).ravel()
+            cols = np.broadcast_to(idx[glob][:, None, :], (N, 12, 12)).ravel()
+            keep = (rows >= 0) & (cols >= 0)
+            self._pattern = (rows[keep], cols[keep], keep)
+        return self._pattern
+
+    def assemble(self, blocks):
+        """Sparse (nz, nz) CSC matrix on the mask from element blocks (N, 12, 12) (block tridiagonal in nodes)."""
+        rows, cols, keep = self._block_pattern()
+        return sp.csc_matrix((blocks.ravel()[keep], (rows, cols)), shape=(self.nz, self.nz))
+
+    def step_jacobian(self, h, Lam_n, r_n, xi, r_1):
+        """Exact Jacobian of the step residual pi_n + D1 L_d + f^- (translational rows in the level-n body
+        frame) with respect to the unknowns (b, xi) on the mask: element blocks by complex step of the
+        analytic element gradient (``_k_step_blocks``), assembled.  The tip torque's f^- does not depend
+        on the unknowns."""
+        _, rhoA, inertia, J, K, g, force = self._consts()
+        blocks = np.empty((self.N, 12, 12))
+        f8 = np.float64
+        _k_step_blocks(float(h), self.ds, rhoA, inertia, J, K, g, self.paper_measure,
+                       np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), EPS_CS, blocks)
+        return self.assemble(blocks)
+
+    def potential_hessian(self, Lam, r, load_factor=1.0):
+        """Exact d(-grad U)/dz (nz, nz) at (Lam, r) under Lambda cay(sigma), r + dr: the derivative of the
+        generalised force (tip torque included) that rod_statics' Newton and modes need."""
+        _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
+        blocks = np.empty((self.N, 12, 12))
+        _k_static_blocks(self.ds, rhoA, inertia, J, K, g, self.paper_measure, np.ascontiguousarray(Lam, dtype=np.float64),
+                         np.ascontiguousarray(r, dtype=np.float64), EPS_CS, blocks)
+        if np.any(self.torque):
+            # Lambda_N^T T under Lambda_N cay(sigma): d/dsigma = hat(Lambda_N^T T)
+            v = load_factor * (Lam[-1].T @ self.torque)
+            blocks[-1, 9:, 9:] += np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+        return self.assemble(blocks)
+
+    def derivative_complex_step(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
+        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2) by complex step of the whole L_d (``_k_pieces``):
+        the independent reference of the analytic :meth:`derivative` (tested equal)."""
         sig, dr, colour, direction = self._cs_plan()
         try:
             elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
@@ -461,7 +544,12 @@ class RodSimulation:
         return R[m.mask]
 
     def jacobian(self, z, Lam_n, r_n, pi_n):
-        """Colour-grouped central differences of the exact residual (banded: nodes j-1..j+1 couple)."""
+        """Exact Jacobian of the residual, assembled from the element blocks (block tridiagonal in nodes)."""
+        r_1, xi = self._split(z, Lam_n, r_n)
+        return self.model.step_jacobian(self.h, Lam_n, r_n, xi, r_1)
+
+    def jacobian_fd(self, z, Lam_n, r_n, pi_n):
+        """Colour-grouped central differences of the residual (the 0.1 Jacobian; kept for comparison)."""
         m = self.model
 
         def full(zz):
@@ -482,7 +570,7 @@ class RodSimulation:
         z0 = u0[m.mask]
         F = lambda z: self.residual(z, Lam_n, r_n, pi_n)  # noqa: E731
         Jf = lambda z: self.jacobian(z, Lam_n, r_n, pi_n)  # noqa: E731
-        # chord iterations cost 1/40 of a Jacobian: tolerate slow ones rather than refreshing
+        # chord iterations are cheaper than a Jacobian and its factorisation: tolerate slow ones
         res = newton(F, Jf, z0, self.scale, self.tol, max(self.max_iter, 40), self._factor,
                      rate_refresh=RATE_REFRESH_ROD, chord_iterations=30, polish=POLISH_ROD)
         if not res.converged:
@@ -715,3 +803,246 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
         for i in range(3):
             fN += force[i] * 0.5 * (rn[N, i] + r1[N, i])
         node[b, N] = h * fN
+
+
+# ---------------------------------------------------------------------------
+# exact element derivatives (docs/theory.md §9): the element's discrete Lagrangian, its analytic
+# gradient with respect to the Lie-group variations of both levels, and the Newton block (the
+# derivative of that gradient with respect to the step unknowns) by complex step of the analytic
+# gradient.  Every kernel is generic in the scalar type: real for the residual, complex for the
+# complex-step columns.
+#
+# Gradient layout of an element e = (a, b) = (j, j+1): [dr_a, sigma_a, dr_b, sigma_b] (12).
+
+
+@njit(cache=True, inline="always")
+def _k_dcinvT(w, v, s, out):
+    """out = (dcay^-1_{s w})^T v = v + (s/2) w x v + (w.v)/4 w   (s = +-1)."""
+    wv = 0.25 * (w[0] * v[0] + w[1] * v[1] + w[2] * v[2])
+    out[0] = v[0] + 0.5 * s * (w[1] * v[2] - w[2] * v[1]) + wv * w[0]
+    out[1] = v[1] + 0.5 * s * (w[2] * v[0] - w[0] * v[2]) + wv * w[1]
+    out[2] = v[2] + 0.5 * s * (w[0] * v[1] - w[1] * v[0]) + wv * w[2]
+
+
+@njit(cache=True)
+def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, D1, D2, M, V):
+    """Discrete Lagrangian of one element (returned) and its exact gradients.
+
+    ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
+    of level n+1 (level n held), layout [dr_a, sigma_a, dr_b, sigma_b].  The level n+1 frames are
+    L0 cay(xi).  All arrays share one scalar type (float64, or complex128 for complex steps);
+    ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
+    """
+    Ca, Cb, L1a, L1b, T = M[0], M[1], M[2], M[3], M[4]
+    _k_cay(xia[0], xia[1], xia[2], Ca)
+    _k_cay(xib[0], xib[1], xib[2], Cb)
+    _k_mm(L0a, Ca, L1a)
+    _k_mm(L0b, Cb, L1b)
+    om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
+    Gb, Ob, gG, gw, tmp, Ixa, Ixb = V[8], V[9], V[10], V[11], V[12], V[13], V[14]
+    _k_mtm(L0a, L0b, T)
+    _k_cay_inv(T, om0)
+    _k_mtm(L1a, L1b, T)
+    _k_cay_inv(T, om1)
+    for i in range(3):
+        dr0[i] = r0b[i] - r0a[i]
+        dr1[i] = r1b[i] - r1a[i]
+    for i in range(3):
+        pa0[i] = L0a[0, i] * dr0[0] + L0a[1, i] * dr0[1] + L0a[2, i] * dr0[2]
+        pb0[i] = L0b[0, i] * dr0[0] + L0b[1, i] * dr0[1] + L0b[2, i] * dr0[2]
+        pa1[i] = L1a[0, i] * dr1[0] + L1a[1, i] * dr1[1] + L1a[2, i] * dr1[2]
+        pb1[i] = L1b[0, i] * dr1[0] + L1b[1, i] * dr1[1] + L1b[2, i] * dr1[2]
+    Gb[0] = 0.0  # (scratch is uninitialised: a zero of the scalar type)
+    W = Gb[0]
+    gg = Gb[0]
+    grav = Gb[0]
+    ka = Gb[0]
+    kb = Gb[0]
+    ih2 = 1.0 / (h * h)
+    for i in range(3):
+        Gb[i] = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
+        Ob[i] = 0.5 * (om0[i] + om1[i]) / ds
+        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        W += 0.5 * Jd[i] * Ob[i] * Ob[i] + 0.5 * Kd[i] * dg * dg
+        gg += Gb[i] * Gb[i]
+        grav += g[i] * 0.25 * (r0a[i] + r1a[i] + r0b[i] + r1b[i])
+        va = r1a[i] - r0a[i]
+        vb = r1b[i] - r0b[i]
+        Ixa[i] = inertia[i] * xia[i]
+        Ixb[i] = inertia[i] * xib[i]
+        ka += 0.5 * (rhoA * va * va + Ixa[i] * xia[i]) * ih2
+        kb += 0.5 * (rhoA * vb * vb + Ixb[i] * xib[i]) * ih2
+    P = 0.5 * (ka + kb) - W + rhoA * grav
+    if paper:
+        mu = np.sqrt(gg)
+    else:
+        mu = 1.0 + 0.0 * gg
+    c = h * ds * mu
+    # gradients of E = h ds mu P with respect to each level's strains (the same for both levels)
+    for i in range(3):
+        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        gG[i] = -0.5 * c * Kd[i] * dg
+        if paper:
+            gG[i] += h * ds * P * 0.5 * Gb[i] / mu
+        gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
+    for lev in range(2):
+        D = D1 if lev == 0 else D2
+        La = L0a if lev == 0 else L1a
+        Lb = L0b if lev == 0 else L1b
+        om = om0 if lev == 0 else om1
+        pa = pa0 if lev == 0 else pa1
+        pb = pb0 if lev == 0 else pb1
+        sgn = -1.0 if lev == 0 else 1.0
+        for i in range(3):
+            # Gamma = (La + Lb)^T (rb - ra) / (2 ds);  gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2
+            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+            D[i] = -f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
+            D[6 + i] = f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
+        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds);  domega = -dcay^-1_om sigma
+        _k_dcinvT(om, gw, 1.0, tmp)
+        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds) - tmp[0]
+        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds) - tmp[1]
+        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds) - tmp[2]
+        # sigma_b: domega = dcay^-1_{-om} sigma
+        _k_dcinvT(om, gw, -1.0, tmp)
+        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds) + tmp[0]
+        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds) + tmp[1]
+        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds) + tmp[2]
+        # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
+        _k_dcinvT(xia, Ixa, -sgn, tmp)
+        for i in range(3):
+            D[3 + i] += sgn * 0.5 * c * ih2 * tmp[i]
+        _k_dcinvT(xib, Ixb, -sgn, tmp)
+        for i in range(3):
+            D[9 + i] += sgn * 0.5 * c * ih2 * tmp[i]
+    return c * P
+
+
+@njit(cache=True)
+def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, D1, D2):
+    """Sum of the element gradients (and the tip force's node piece) into D1, D2 (N+1, 6); returns L_d."""
+    N = Lam_n.shape[0] - 1
+    M = np.empty((5, 3, 3), Lam_n.dtype)
+    V = np.empty((16, 3), Lam_n.dtype)
+    e1 = np.empty(12, Lam_n.dtype)
+    e2 = np.empty(12, Lam_n.dtype)
+    D1[:] = 0.0
+    D2[:] = 0.0
+    L = 0.0
+    for e in range(N):
+        L += _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
+                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], e1, e2, M, V)
+        for i in range(6):
+            D1[e, i] += e1[i]
+            D1[e + 1, i] += e1[6 + i]
+            D2[e, i] += e2[i]
+            D2[e + 1, i] += e2[6 + i]
+    for i in range(3):
+        D1[N, i] += 0.5 * h * force[i]
+        D2[N, i] += 0.5 * h * force[i]
+        L += 0.5 * h * force[i] * (r_n[N, i] + r_1[N, i])
+    return L
+
+
+@njit(cache=True)
+def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, eps, blocks):
+    """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
+
+    u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
+    frame of their node (as in :meth:`RodSimulation.residual`).  By complex step of the analytic
+    gradient: exact to round-off.
+    """
+    N = Lam_n.shape[0] - 1
+    c = np.complex128
+    M = np.empty((5, 3, 3), c)
+    V = np.empty((16, 3), c)
+    e1 = np.empty(12, c)
+    e2 = np.empty(12, c)
+    La = np.empty((3, 3), c)
+    Lb = np.empty((3, 3), c)
+    ra = np.empty(3, c)
+    rb = np.empty(3, c)
+    xa = np.empty(3, c)
+    xb = np.empty(3, c)
+    qa = np.empty(3, c)
+    qb = np.empty(3, c)
+    col = np.empty(12)
+    inv = 1.0 / eps
+    for e in range(N):
+        for i in range(3):
+            ra[i] = r_n[e, i]
+            rb[i] = r_n[e + 1, i]
+            for m in range(3):
+                La[i, m] = Lam_n[e, i, m]
+                Lb[i, m] = Lam_n[e + 1, i, m]
+        for k in range(12):
+            for i in range(3):
+                xa[i] = xi[e, i]
+                xb[i] = xi[e + 1, i]
+                qa[i] = r_1[e, i]
+                qb[i] = r_1[e + 1, i]
+            d = k % 3
+            if k < 3:
+                for i in range(3):
+                    qa[i] += 1j * eps * Lam_n[e, i, d]
+            elif k < 6:
+                xa[d] += 1j * eps
+            elif k < 9:
+                for i in range(3):
+                    qb[i] += 1j * eps * Lam_n[e + 1, i, d]
+            else:
+                xb[d] += 1j * eps
+            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, e1, e2, M, V)
+            for i in range(12):
+                col[i] = e1[i].imag * inv
+            for i in range(3):  # translational rows in the level-n body frame of their node
+                blocks[e, i, k] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
+                blocks[e, 6 + i, k] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
+                blocks[e, 3 + i, k] = col[3 + i]
+                blocks[e, 9 + i, k] = col[9 + i]
+
+
+@njit(cache=True)
+def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, eps, blocks):
+    """Blocks of d(-grad U)/dz: blocks[e, :, k] = d(D1 + D2 of element e at h = 1, xi = 0)/d z_k under
+    z = (dr_a, sigma_a, dr_b, sigma_b), Lambda -> Lambda cay(sigma), r -> r + dr (both levels).
+    By complex step of the analytic gradient: exact to round-off."""
+    N = Lam.shape[0] - 1
+    c = np.complex128
+    M = np.empty((5, 3, 3), c)
+    V = np.empty((16, 3), c)
+    e1 = np.empty(12, c)
+    e2 = np.empty(12, c)
+    La = np.empty((3, 3), c)
+    Lb = np.empty((3, 3), c)
+    C = np.empty((3, 3), c)
+    ra = np.empty(3, c)
+    rb = np.empty(3, c)
+    zero = np.zeros(3, c)
+    inv = 1.0 / eps
+    for e in range(N):
+        for k in range(12):
+            for i in range(3):
+                ra[i] = r[e, i]
+                rb[i] = r[e + 1, i]
+                for m in range(3):
+                    La[i, m] = Lam[e, i, m]
+                    Lb[i, m] = Lam[e + 1, i, m]
+            d = k % 3
+            if k < 3:
+                ra[d] += 1j * eps
+            elif k < 6:
+                w = np.zeros(3, c)
+                w[d] = 1j * eps
+                _k_cay(w[0], w[1], w[2], C)
+                _k_mm(Lam[e].astype(c), C, La)
+            elif k < 9:
+                rb[d] += 1j * eps
+            else:
+                w = np.zeros(3, c)
+                w[d] = 1j * eps
+                _k_cay(w[0], w[1], w[2], C)
+                _k_mm(Lam[e + 1].astype(c), C, Lb)
+            _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, e1, e2, M, V)
+            for i in range(12):
+                blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv

@@ -3,7 +3,7 @@
 * :func:`static_equilibrium` — Newton on SE(3)^(N+1) for the minimum of the discrete potential, with
   load continuation; with ``spin``, the steady rotation (shape at rest in the spinning frame).
 * :func:`rod_modes` — the space-discrete Lagrangian linearised about a configuration: stiffness from
-  banded differences of the exact force, lumped mass, and about a steady rotation the gyroscopic
+  the exact element Hessians of the discrete potential, lumped mass, and about a steady rotation the gyroscopic
   matrix and centrifugal stiffness of :func:`rotating_frame_kinetics`.
 """
 
@@ -17,7 +17,6 @@ import scipy.sparse as sp
 
 from .errors import SolverError
 from .lie import cay, hat
-from .rod import banded_jacobian
 
 __all__ = ["static_equilibrium", "rod_modes", "rotating_frame_kinetics", "check_rotating_base", "lumped_mass",
            "turn_to_nearest_principal_axis"]
@@ -50,6 +49,29 @@ def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
         return g
 
     return f
+
+
+def _force_jacobian(model, Lam, r, load_factor=1.0, spin=None, centre=None):
+    """Exact derivative (nz, nz) of :func:`_force_map` at z = 0: the element blocks of the discrete
+    potential (complex step of the analytic element gradient, ``RodModel.potential_hessian``) and,
+    with ``spin``, the node-local derivative of the centrifugal force and torque b of
+    :func:`rotating_frame_kinetics` under Lambda cay(sigma), r + dr:
+
+        d b_r / d dr = m Om^T Om,      d b_sigma / d sigma = hat(I Ob) hat(Ob) - hat(Ob) I hat(Ob),   Ob = Lambda^T Om.
+    """
+    H = model.potential_hessian(Lam, r, load_factor)
+    if spin is None:
+        return H
+    Om = np.asarray(spin, dtype=float)
+    W = hat(Om)
+    n = model.N + 1
+    blocks = np.zeros((n, 6, 6))
+    blocks[:, :3, :3] = model.node_mass[:, None, None] * (W.T @ W)
+    Ob = np.einsum("nji,j->ni", Lam, Om)
+    Wb, WI = hat(Ob), hat(model.node_inertia * Ob)
+    blocks[:, 3:, 3:] = WI @ Wb - Wb @ (model.node_inertia[:, :, None] * Wb)
+    idx = np.flatnonzero(model.mask.ravel())
+    return (H + sp.block_diag(list(blocks)).tocsr()[idx][:, idx]).tocsc()
 
 
 def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
@@ -89,7 +111,7 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
                 f = _force_map(model, Lam, r, lf, spin_k, centre)
                 z0 = np.zeros(model.nz)
                 g = f(z0)[mask]
-                H = banded_jacobian(f, z0, mask, model.ds)
+                H = _force_jacobian(model, Lam, r, lf, spin_k, centre)
                 if spin is not None:
                     H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
                 with warnings.catch_warnings():
@@ -203,8 +225,8 @@ DENSE_MODES_LIMIT = 1500
 def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, method="auto"):
     """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
 
-    Stiffness: the Hessian of the discrete potential in (dr, sigma) (banded differences of the
-    exact force); mass: the lumped diagonal of the kinetic energy.  With ``Omega`` (default: the
+    Stiffness: the Hessian of the discrete potential in (dr, sigma) (exact element Hessians,
+    :func:`_force_jacobian`); mass: the lumped diagonal of the kinetic energy.  With ``Omega`` (default: the
     scene's initial angular velocity) the linearisation is about a steady rotation, in the frame
     spinning with it: the gyroscopic matrix G = C - C^T and the centrifugal stiffness -H of
     :func:`rotating_frame_kinetics` enter, and the state must be a relative equilibrium there.
@@ -226,7 +248,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     if np.any(Omega):
         check_rotating_base(model, Omega)
     sparse = method == "sparse" or (method == "auto" and model.nz > DENSE_MODES_LIMIT)
-    K = -banded_jacobian(_force_map(model, Lam, r), np.zeros(model.nz), mask, model.ds)
+    K = -_force_jacobian(model, Lam, r)
     K = (0.5 * (K + K.T)).tocsc()
     M = lumped_mass(model)[mask]
     if not np.any(Omega):

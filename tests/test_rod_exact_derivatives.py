@@ -1,0 +1,149 @@
+"""Exact element derivatives of the rod (varint/rod.py, ``_k_element`` and friends; docs/theory.md §9).
+
+The analytic element gradient against the complex step of the whole discrete Lagrangian; the Newton
+Jacobian assembled from the element blocks (complex step of the analytic gradient) against central
+differences of the residual; the static Hessian (modes, statics) against differences of the force;
+and what the finite-difference Hessian of 0.1 got wrong: its noise (5e-9 of the largest entry)
+breaks the symmetry and the rigid-motion null space that the exact Hessian keeps to round-off.
+"""
+
+import numpy as np
+import pytest
+
+from varint import build_model
+from varint.lie import cay, cay_inv, dcay_inv
+from varint.rod import EPS_CS, RodSimulation, _k_dcinvT, _k_element, banded_jacobian
+from varint.rod_statics import _force_jacobian, _force_map
+
+from test_rod import SECTION, rod_scene, solid_section
+
+LOADS = {"gravity": [0.3, -9.81, 0.5], "load": {"force": [1.0, -2.0, 0.5], "torque": [0.3, 0.2, -0.1]}}
+LOADS_2D = {"gravity": [0.3, -9.81, 0.0], "load": {"force": [1.0, -2.0, 0.0], "torque": [0.0, 0.0, -0.1]}}
+
+
+def _levels(model, rng, amp=0.3):
+    """Two nearby lattice levels around the initial state (bent, if the scene's rod is curved)."""
+    out = []
+    for _ in range(2):
+        s = amp * rng.standard_normal((model.N + 1, 3))
+        d = amp * model.ds * rng.standard_normal((model.N + 1, 3))
+        if model.dim == 2:
+            s[:, :2] = 0.0
+            d[:, 2] = 0.0
+        out.append((model.Lam0 @ cay(s), model.r0 + d))
+    return out
+
+
+def test_dcay_inverse_transpose_kernel_equals_lie_reference():
+    rng = np.random.default_rng(0)
+    for s in (1.0, -1.0):
+        w, v = rng.standard_normal(3), rng.standard_normal(3)
+        out = np.empty(3)
+        _k_dcinvT(w, v, s, out)
+        assert np.allclose(out, dcay_inv(s * w).T @ v, rtol=1e-15, atol=1e-15)
+
+
+@pytest.mark.parametrize("measure", ["reference", "paper"])
+def test_element_kernel_energy_equals_the_numpy_lagrangian(measure):
+    """_k_element's value is the element piece of RodModel.lagrangian_pieces (the NumPy reference)."""
+    model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"]))
+    (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(1))
+    xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
+    elem, _ = model.lagrangian_pieces(1e-3, L0, r0, xi, r1)
+    _, rhoA, inertia, J, K, g, _ = model._consts()
+    for e in (0, 4, model.N - 1):
+        val = _k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
+                         xi[e], xi[e + 1], r1[e], r1[e + 1], np.empty(12), np.empty(12), np.empty((5, 3, 3)), np.empty((16, 3)))
+        assert val == pytest.approx(elem[e], rel=1e-14)
+
+
+@pytest.mark.parametrize("measure", ["reference", "paper"])
+@pytest.mark.parametrize("dimension", [3, 2])
+def test_analytic_gradient_equals_complex_step_of_the_lagrangian(measure, dimension):
+    loads = LOADS if dimension == 3 else LOADS_2D
+    model = build_model(rod_scene(measure=measure, dimension=dimension, ends=("clamped", "free"), **loads))
+    (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(2))
+    xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
+    for h in (1e-3, 1.0):
+        D1, D2, _ = model.gradients(h, L0, r0, xi, r1)
+        for level, D in ((0, D1), (1, D2)):
+            ref = model.derivative_complex_step(h, L0, r0, xi, r1, level)
+            assert np.max(np.abs(D - ref)) <= 1e-13 * np.max(np.abs(ref)), (level, np.max(np.abs(D - ref)))
+
+
+CASES = {
+    "3d_clamped_bent_loads": dict(dimension=3, ends=("clamped", "free"), initial={"curvature": [0.5, 1.0, -0.7]}, **LOADS),
+    "3d_free_bent_spinning": dict(dimension=3, initial={"curvature": [0.5, 1.0, -0.7], "angular_velocity": [13.0, 40.0, -27.0],
+                                                        "velocity": [0.1, 0.2, -0.3]}, gravity=[0.0, 0.0, -9.81]),
+    "3d_pinned_paper": dict(dimension=3, ends=("pinned", "free"), measure="paper", **LOADS),
+    "2d_clamped_bent_loads": dict(dimension=2, ends=("clamped", "free"), initial={"curvature": [0.0, 0.0, 2.0]}, **LOADS_2D),
+    "2d_free_spinning": dict(dimension=2, initial={"angular_velocity": [0.0, 0.0, 30.0]}, gravity=[0.0, -9.81, 0.0]),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_assembled_jacobian_equals_finite_differences_of_the_residual(case):
+    """Newton's exact Jacobian against the colour-grouped central differences of the residual (the 0.1
+    Jacobian), at a state some steps into the motion and at a perturbed iterate."""
+    model = build_model(rod_scene(nodes=11, h=1e-2, section=dict(SECTION, axial_stiffness=1e4, shear_stiffness=8e3), **CASES[case]))
+    sim = RodSimulation(model)
+    for _ in range(3):
+        sim.step()
+    from varint.rod import _unpack
+
+    N = model.N
+    Lam_n, r_n, _ = _unpack(sim.state.q, N)
+    pi_n = sim.state.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
+    guess = sim.state.v.reshape(2, N + 1, 3)
+    z = np.concatenate([guess[0], guess[1]], axis=1)[model.mask]
+    z = z + 0.05 * sim.scale * np.random.default_rng(3).standard_normal(z.shape)
+    J = sim.jacobian(z, Lam_n, r_n, pi_n).toarray()
+    Jfd = sim.jacobian_fd(z, Lam_n, r_n, pi_n).toarray()
+    assert np.max(np.abs(J - Jfd)) <= 1e-6 * np.max(np.abs(J)), np.max(np.abs(J - Jfd)) / np.max(np.abs(J))
+    # the sparsity is the element stencil: nodes j-1..j+1
+    per = int(model.mask[1].sum())
+    nodes = np.repeat(np.arange(N + 1), model.mask.sum(1))
+    rows, cols = np.nonzero(J)
+    assert np.all(np.abs(nodes[rows] - nodes[cols]) <= 1) and per > 0
+
+
+@pytest.mark.parametrize("case", ["clamped_torque", "spinning_free"])
+def test_static_hessian_equals_finite_differences_of_the_force(case):
+    """The exact derivative of the generalised force (statics and modes; with the tip torque, and with
+    the centrifugal force and torque of a steady rotation) against central differences."""
+    if case == "clamped_torque":
+        model = build_model(rod_scene(nodes=9, ends=("clamped", "free"), initial={"curvature": [0.5, 1.0, -0.7]}, **LOADS))
+        spin, centre = None, None
+    else:
+        model = build_model(rod_scene(nodes=9, initial={"angular_velocity": [0.0, 0.0, 3.0]}))
+        spin, centre = np.array([0.3, 0.2, 3.0]), np.array([0.1, 0.2, 0.3])
+    (L, r), _ = _levels(model, np.random.default_rng(4))
+    H = _force_jacobian(model, L, r, 0.7, spin, centre).toarray()
+    Hfd = banded_jacobian(_force_map(model, L, r, 0.7, spin, centre), np.zeros(model.nz), model.mask, model.ds).toarray()
+    assert np.max(np.abs(H - Hfd)) <= 1e-6 * np.max(np.abs(H)), np.max(np.abs(H - Hfd)) / np.max(np.abs(H))
+
+
+def test_exact_stiffness_is_symmetric_and_annihilates_rigid_motions_to_round_off():
+    """The case the finite-difference Hessian got visibly wrong: a slender free rod (L/r = 10^4).
+
+    At the straight unloaded state the stiffness is symmetric and annihilates the six rigid motions
+    (dr = a + w x r, sigma = Lambda^T w).  The 0.1 banded differences left a noise of 5e-9 of the
+    largest entry in both (measured here: asymmetry 1.1e-9, rigid residual 1.1e-9; exact: 1.4e-18, 8e-17), which shifts the lowest
+    w^2 of a slender cantilever by 3.5e-6 at L/r = 10^4, 4e-4 at 10^5 and 8 % at 10^6 (Rayleigh
+    quotients on the exact mode, docs/performance.md); the exact one keeps both to round-off.
+    """
+    model = build_model(rod_scene(nodes=41, section=solid_section(rad=1e-4)))
+    K = -_force_jacobian(model, model.Lam0, model.r0).toarray()
+    Kfd = -banded_jacobian(_force_map(model, model.Lam0, model.r0), np.zeros(model.nz), model.mask, model.ds).toarray()
+    big = np.max(np.abs(K))
+    rigid = []
+    for k in range(3):
+        a = np.zeros(3)
+        a[k] = 1.0
+        rigid.append(np.concatenate([np.tile(a, (model.N + 1, 1)), np.zeros((model.N + 1, 3))], 1))
+        rigid.append(np.concatenate([np.cross(a, model.r0), model.Lam0.transpose(0, 2, 1) @ a], 1))
+    scale = np.max(np.abs(np.array(rigid)))
+    worst = {name: max(np.max(np.abs(M @ v.ravel())) for v in rigid) / (big * scale) for name, M in (("exact", K), ("fd", Kfd))}
+    asym = {name: np.max(np.abs(M - M.T)) / big for name, M in (("exact", K), ("fd", Kfd))}
+    assert asym["exact"] < 1e-15 and worst["exact"] < 1e-14, (asym, worst)
+    assert asym["fd"] > 1e-10 and worst["fd"] > 1e-11, (asym, worst)  # the noise the exact Hessian removes
