@@ -37,6 +37,7 @@ class Scheme:
     """Shared pieces of the two quadratures."""
 
     name = "scheme"
+    order = None  #: the declared order of accuracy in h; each scheme sets it
 
     def __init__(self, model, h):
         self.model = model
@@ -56,6 +57,7 @@ class Scheme:
 
 class Midpoint(Scheme):
     name = "midpoint"
+    order = 2  #: global order in h (symmetric one-stage quadrature); asserted by tests/test_convergence.py
 
     def discrete_lagrangian(self, q0, q1, lam):
         cfg = self._cfg(0.5 * (q0 + q1), lam)
@@ -101,6 +103,7 @@ class Midpoint(Scheme):
 
 class Trapezoidal(Scheme):
     name = "trapezoidal"
+    order = 2  #: global order in h (Stormer-Verlet); asserted by tests/test_convergence.py
 
     def __init__(self, model, h):
         super().__init__(model, h)
