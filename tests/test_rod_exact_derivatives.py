@@ -53,7 +53,8 @@ def test_element_kernel_energy_equals_the_numpy_lagrangian(measure):
     _, rhoA, inertia, J, K, g, _ = model._consts()
     for e in (0, 4, model.N - 1):
         val = _k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
-                         xi[e], xi[e + 1], r1[e], r1[e + 1], np.empty(12), np.empty(12), np.empty((5, 3, 3)), np.empty((16, 3)))
+                         xi[e], xi[e + 1], r1[e], r1[e + 1], 0, 2, np.empty(12), np.empty(12), np.empty((5, 3, 3)),
+                         np.empty((16, 3)))
         assert val == pytest.approx(elem[e], rel=1e-14)
 
 

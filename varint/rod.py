@@ -43,11 +43,12 @@ __all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "banded_jac
 
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
-#: tolerate slow chord iterations (a finite-difference Jacobian cost about 40 residuals; the exact one,
-#: docs/performance.md, about 4).  (Iterating them to
-#: tol 1e-14 was tried: below the round-off floor of a stiff rod's step, ~2e-13 at cond(J) = 5e5, it
-#: stalled a 10^6-step run at step 61536.)
-RATE_REFRESH_ROD = 0.5
+#: refresh the Jacobian when a chord iteration contracts by less than this.  0.5 in 0.1, when a
+#: finite-difference Jacobian cost about 40 residuals; the exact one costs 8-15 (docs/performance.md,
+#: "Exact rod Jacobian"), and 0.15 takes the 100-element tumbling rod from 15 to 11.5 iterations per
+#: step, 1.8 to 1.5 ms.  (Iterating the chord to tol 1e-14 was tried: below the round-off floor of a
+#: stiff rod's step, ~2e-13 at cond(J) = 5e5, it stalled a 10^6-step run at step 61536.)
+RATE_REFRESH_ROD = 0.15
 #: iterations past newton_tol down to the round-off floor: a step's momentum error is its final
 #: residual, and over 10^4 tumbling steps tolerance-sized residuals added up to 3e-12 of the angular
 #: momentum (1.7e-14 when polished; docs/validation.md)
@@ -310,9 +311,10 @@ class RodModel:
             self._exact_consts = c
         return c
 
-    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0):
+    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2)):
         """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
-        element gradients (``_k_element``; docs/theory.md §9), and the value of L_d."""
+        element gradients (``_k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
+        range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros)."""
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
         D1 = np.empty((self.N + 1, 6))
         D2 = np.empty((self.N + 1, 6))
@@ -320,7 +322,8 @@ class RodModel:
         try:
             L = _k_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure,
                             np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
-                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), D1, D2)
+                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), levels[0], levels[1],
+                            D1, D2)
         except ZeroDivisionError:
             # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
             # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
@@ -331,7 +334,7 @@ class RodModel:
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
         """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact (analytic element gradients)."""
-        return self.gradients(h, Lam_n, r_n, xi, r_1, load_factor)[level]
+        return self.gradients(h, Lam_n, r_n, xi, r_1, load_factor, (level, level + 1))[level]
 
     def _block_pattern(self):
         """Rows, columns (on the mask) and kept entries of the element blocks (N, 12, 12), built once."""
@@ -363,7 +366,7 @@ class RodModel:
         f8 = np.float64
         _k_step_blocks(float(h), self.ds, rhoA, inertia, J, K, g, self.paper_measure,
                        np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
-                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), EPS_CS, blocks)
+                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), self.mask, EPS_CS, blocks)
         return self.assemble(blocks)
 
     def potential_hessian(self, Lam, r, load_factor=1.0):
@@ -372,7 +375,7 @@ class RodModel:
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
         blocks = np.empty((self.N, 12, 12))
         _k_static_blocks(self.ds, rhoA, inertia, J, K, g, self.paper_measure, np.ascontiguousarray(Lam, dtype=np.float64),
-                         np.ascontiguousarray(r, dtype=np.float64), EPS_CS, blocks)
+                         np.ascontiguousarray(r, dtype=np.float64), self.mask, EPS_CS, blocks)
         if np.any(self.torque):
             # Lambda_N^T T under Lambda_N cay(sigma): d/dsigma = hat(Lambda_N^T T)
             v = load_factor * (Lam[-1].T @ self.torque)
@@ -824,13 +827,14 @@ def _k_dcinvT(w, v, s, out):
     out[2] = v[2] + 0.5 * s * (w[0] * v[1] - w[1] * v[0]) + wv * w[2]
 
 
-@njit(cache=True)
-def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, D1, D2, M, V):
+@njit(cache=True, inline="always")
+def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
     """Discrete Lagrangian of one element (returned) and its exact gradients.
 
     ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
     of level n+1 (level n held), layout [dr_a, sigma_a, dr_b, sigma_b].  The level n+1 frames are
-    L0 cay(xi).  All arrays share one scalar type (float64, or complex128 for complex steps);
+    L0 cay(xi).  Only levels lev_lo <= level < lev_hi are computed ((0, 1): D1 only; (1, 2): D2 only).
+    All arrays share one scalar type (float64, or complex128 for complex steps);
     ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
     """
     Ca, Cb, L1a, L1b, T = M[0], M[1], M[2], M[3], M[4]
@@ -885,7 +889,7 @@ def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, 
         if paper:
             gG[i] += h * ds * P * 0.5 * Gb[i] / mu
         gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
-    for lev in range(2):
+    for lev in range(lev_lo, lev_hi):
         D = D1 if lev == 0 else D2
         La = L0a if lev == 0 else L1a
         Lb = L0b if lev == 0 else L1b
@@ -919,7 +923,7 @@ def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, 
 
 
 @njit(cache=True)
-def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, D1, D2):
+def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev_lo, lev_hi, D1, D2):
     """Sum of the element gradients (and the tip force's node piece) into D1, D2 (N+1, 6); returns L_d."""
     N = Lam_n.shape[0] - 1
     M = np.empty((5, 3, 3), Lam_n.dtype)
@@ -931,7 +935,7 @@ def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r
     L = 0.0
     for e in range(N):
         L += _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
-                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], e1, e2, M, V)
+                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev_lo, lev_hi, e1, e2, M, V)
         for i in range(6):
             D1[e, i] += e1[i]
             D1[e + 1, i] += e1[6 + i]
@@ -945,12 +949,12 @@ def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r
 
 
 @njit(cache=True)
-def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, eps, blocks):
+def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
     """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
 
     u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
     frame of their node (as in :meth:`RodSimulation.residual`).  By complex step of the analytic
-    gradient: exact to round-off.
+    gradient: exact to round-off.  Columns of unknowns off the ``mask`` (N+1, 6) are left zero.
     """
     N = Lam_n.shape[0] - 1
     c = np.complex128
@@ -976,6 +980,10 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
                 La[i, m] = Lam_n[e, i, m]
                 Lb[i, m] = Lam_n[e + 1, i, m]
         for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                continue
             for i in range(3):
                 xa[i] = xi[e, i]
                 xb[i] = xi[e + 1, i]
@@ -992,7 +1000,7 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
                     qb[i] += 1j * eps * Lam_n[e + 1, i, d]
             else:
                 xb[d] += 1j * eps
-            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, e1, e2, M, V)
+            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
             for i in range(12):
                 col[i] = e1[i].imag * inv
             for i in range(3):  # translational rows in the level-n body frame of their node
@@ -1003,10 +1011,10 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
 
 
 @njit(cache=True)
-def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, eps, blocks):
+def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blocks):
     """Blocks of d(-grad U)/dz: blocks[e, :, k] = d(D1 + D2 of element e at h = 1, xi = 0)/d z_k under
     z = (dr_a, sigma_a, dr_b, sigma_b), Lambda -> Lambda cay(sigma), r -> r + dr (both levels).
-    By complex step of the analytic gradient: exact to round-off."""
+    By complex step of the analytic gradient: exact to round-off.  Columns off the ``mask`` are left zero."""
     N = Lam.shape[0] - 1
     c = np.complex128
     M = np.empty((5, 3, 3), c)
@@ -1022,6 +1030,10 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, eps, blocks):
     inv = 1.0 / eps
     for e in range(N):
         for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                continue
             for i in range(3):
                 ra[i] = r[e, i]
                 rb[i] = r[e + 1, i]
@@ -1043,6 +1055,6 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, eps, blocks):
                 w[d] = 1j * eps
                 _k_cay(w[0], w[1], w[2], C)
                 _k_mm(Lam[e + 1].astype(c), C, Lb)
-            _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, e1, e2, M, V)
+            _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
