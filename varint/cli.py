@@ -1,4 +1,4 @@
-"""Command line: ``varint run | check | info | plot | static | modes``.
+"""Command line: ``varint run | check | info | plot | static | modes | shock``.
 
 Every failure the user can cause (bad scene, unreadable file, an output that would
 replace a file, Newton failure) prints one line per problem prefixed ``varint: error:``
@@ -240,6 +240,33 @@ def cmd_static(args):
     return 0
 
 
+def cmd_shock(args):
+    """``varint shock SCENE --speed C | --strength Z``: the traveling shock of the scene's tube (docs/theory.md §11)."""
+    from .shocks import tube_of_scene, traveling_shock, traveling_shock_of_strength
+
+    scene = _load_scene(args.scene)
+    tube = tube_of_scene(scene)
+    if args.speed is not None:
+        ts = traveling_shock(tube, args.speed)
+    else:
+        ts = traveling_shock_of_strength(tube, args.strength)
+    d = ts.as_dict()
+    if args.json:
+        print(json.dumps(_jsonable(d)))
+        return 0
+    atm = 101325.0
+    print(f"traveling shock in {args.scene}: speed {d['speed']:.6g} m/s (Mach {d['mach']:.6g} into the gas ahead), "
+          f"strength z = {d['strength']:.6g}")
+    print(f"  ahead (at rest):  p = {d['p_minus']:.6g} Pa ({d['p_minus'] / atm:.4g} atm), R = {d['R_minus']:.6g} m, "
+          f"rho = {d['rho_minus']:.6g} kg/m^3")
+    print(f"  far behind:       p = {d['p_plus']:.6g} Pa ({d['p_plus'] / atm:.4g} atm), R = {d['R_plus']:.6g} m, "
+          f"u = {d['u_plus']:.6g} m/s, rho = {d['rho_plus']:.6g} kg/m^3")
+    print(f"  at the shock:     R = {d['R_shock']:.6g} m, p jumps {d['p_shock_ahead']:.6g} -> {d['p_shock_behind']:.6g} Pa")
+    lo, hi = d["speed_range"]
+    print(f"  admissible speeds: {lo:.6g} < c < {hi:.6g} m/s")
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="varint", description="Variational integrator for expandable tubes conveying fluid.")
     p.add_argument("--version", action="version", version=f"varint {__version__}")
@@ -275,6 +302,13 @@ def build_parser():
     m.add_argument("--about", choices=("initial", "static"), default="initial",
                    help="linearise about the scene's initial state (default) or its loaded static equilibrium / steady rotation (rods)")
     m.set_defaults(func=cmd_modes)
+    sh = sub.add_parser("shock", help="the traveling shock of a tube scene (linear wall, ideal gas at rest ahead)")
+    sh.add_argument("scene")
+    g = sh.add_mutually_exclusive_group(required=True)
+    g.add_argument("--speed", type=float, help="shock speed c [m/s]")
+    g.add_argument("--strength", type=float, help="shock strength z = (p_plus - p_minus)/p_minus")
+    sh.add_argument("--json", action="store_true")
+    sh.set_defaults(func=cmd_shock)
     return p
 
 
