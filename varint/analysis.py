@@ -68,9 +68,9 @@ def modes_of(K, M, count, vectors=False):
     """Generalised eigenproblem K x = w^2 diag(M) x -> modes list (and shapes), in eigenvalue order.
 
     A negative eigenvalue is an instability (frequency 0, growth rate sqrt(-w^2)) unless it is
-    round-off small: below 1e-14 of the largest |w^2| (rigid-body modes of a free rod computed
-    from the banded-difference Hessian sit at ~1e-17 of it; a column at 1.1 x its Euler load at
-    ~2e-13).  Eigenvalue order lists instabilities first, then frequencies increasing.
+    round-off small: below 1e-14 of the largest |w^2| (rigid-body modes of a free rod sit at
+    ~1e-17 of it, the eigen-solver's round-off: the same with the exact element Hessian as with the
+    finite differences of 0.1; a column at 1.1 x its Euler load at ~2e-13).  Eigenvalue order lists instabilities first, then frequencies increasing.
     """
     w2, X = sla.eigh(K, np.diag(M))
     res = _modes_from_w2(w2[:count], 1e-14 * max(abs(w2[-1]), abs(w2[0]), 1e-300))
