@@ -344,3 +344,73 @@ def test_measure_shock_needs_two_records(tmp_path):
     _write_sod_run(path, times=(0.1,))
     with pytest.raises(S.ShockError, match="record after the first"):
         S.measure_shock(path)
+
+
+# --- [initial.traveling_shock] ------------------------------------------------------------------------
+
+SCENE_TS = """title = "traveling shock"
+[tube]
+length = 2.0
+nodes = 201
+radius = 0.05
+[wall]
+model = "{model}"
+{a}beta1 = 1.14e5
+beta2 = 8.37e5
+[fluid]
+model = "ideal-gas"
+density = 1.225
+pressure = 101325.0
+parcels = 300
+[initial.traveling_shock]
+speed = {speed}
+position = 0.8
+[environment]
+external_pressure = 101325.0
+[time]
+step = 1e-6
+end = 5e-6
+"""
+
+
+@pytest.mark.parametrize("model", ["dynamic", "quasistatic"])
+def test_initial_traveling_shock_fields_are_the_profile(model):
+    """The initial fields (parcel densities and pressures, label velocities, nodal radii) are the
+    traveling-wave profile of varint.shocks with the shock at `position`; the scene steps."""
+    import varint
+    from varint.scene import parse_scene
+
+    text = SCENE_TS.format(model=model, a="a = 0.4782\n" if model == "dynamic" else "", speed=447.0)
+    scene = parse_scene(text)
+    m = varint.build_model(scene)
+    tube = _tube(a=0.4782 if model == "dynamic" else 0.0)
+    wave = S.traveling_shock(tube, 447.0)
+    R_exp = wave.profile(m.node_s - 0.8)[0]
+    assert np.max(np.abs(m.R_reference - R_exp)) < 1e-13
+    assert np.max(np.abs(m.R_reference - 0.05)) > 0.01          # the wall is not at rest
+    s = np.linspace(0.0, 2.0, m.M + 1)
+    centres = 0.5 * (s[:-1] + s[1:])
+    _, rho_exp, u_exp, p_exp = wave.profile(centres - 0.8)
+    rho = m.m / m.V0
+    assert np.max(np.abs(rho / rho_exp - 1)) < 1e-13
+    assert np.max(np.abs(m.eos.pressure(rho, m.S) / p_exp - 1)) < 1e-12
+    u_lab = wave.profile(s - 0.8)[2]
+    assert np.max(np.abs(m.v_init[m.layout["s"]] - u_lab[1:-1])) < 1e-9
+    sim = varint.make_simulation(m)
+    for _ in range(3):
+        sim.step()
+    assert np.isfinite(sim.monitors()["energy"])
+
+
+def test_initial_traveling_shock_refuses_what_it_cannot_start():
+    from varint.errors import SceneError
+    from varint.scene import parse_scene
+
+    with pytest.raises(SceneError, match=r"initial\.traveling_shock\.speed: .*admissible range 340\.294 < c < 488"):
+        parse_scene(SCENE_TS.format(model="dynamic", a="a = 0.4782\n", speed=600.0))
+    text = SCENE_TS.format(model="dynamic", a="a = 0.4782\n", speed=447.0).replace(
+        "[initial.traveling_shock]", "[[fluid.perturbation]]\nfield = \"pressure\"\nshape = \"gaussian\"\namplitude = 1.0\ncenter = 1.0\nwidth = 0.1\n[initial.traveling_shock]")
+    with pytest.raises(SceneError, match="replaces the initial fields"):
+        parse_scene(text)
+    with pytest.raises(SceneError, match=r"initial\.spead: unknown key \(did you mean 'traveling_shock'\?\)|initial.spead"):
+        parse_scene(SCENE_TS.format(model="dynamic", a="a = 0.4782\n", speed=447.0) + "[initial.spead]\nx = 1\n")

@@ -1,5 +1,8 @@
 """Initial fluid fields of a scene: base state, piecewise regions, then perturbations.
 
+With ``[initial.traveling_shock]`` the fields are instead the traveling shock's profile
+(varint.shocks, docs/theory.md §11) with the shock at ``position``.
+
 Perturbations of pressure or density are isentropic: the other variable follows
 at the parcel's entropy (ideal gas) or along the barotrope (Tait).
 """
@@ -17,6 +20,8 @@ __all__ = ["shape_profile", "initial_fields", "InitialFields"]
 def shape_profile(p, x):
     """A perturbation profile (scene ``[[...perturbation]]``) evaluated at x."""
     x = np.asarray(x, dtype=np.float64)
+    if p.shape == "traveling_shock":  # internal: set by [initial.traveling_shock] (varint.scene)
+        return p.wave.profile(x - p.position)[0] - p.wave.tube.R0
     if p.shape == "cosine":
         return p.amplitude * np.cos(2 * math.pi * x / p.wavelength + p.phase)
     if p.shape == "gaussian":
@@ -36,6 +41,10 @@ class InitialFields:
         rho = np.full(x.shape, f.density, dtype=np.float64)
         if eos is None:  # incompressible: density is constant, there is no entropy
             return rho, np.zeros_like(rho)
+        if f.traveling_shock is not None:  # [initial.traveling_shock]: the wave's profile at t = 0
+            wave = f.traveling_shock.wave
+            _, rho, _, p = wave.profile(x - f.traveling_shock.position)
+            return rho, eos.entropy(rho, p)
         p = np.full(x.shape, f.pressure, dtype=np.float64)
         S_base = eos.entropy(f.density, f.pressure) if eos.has_entropy else 0.0
         S = np.full(x.shape, S_base)
@@ -74,6 +83,8 @@ class InitialFields:
 
     def velocity(self, x):
         x = np.asarray(x, dtype=np.float64)
+        if self.fluid.traveling_shock is not None:
+            return self.fluid.traveling_shock.wave.profile(x - self.fluid.traveling_shock.position)[2]
         u = np.full(x.shape, self.fluid.velocity, dtype=np.float64)
         for r in self.fluid.initial:
             if r.velocity is not None:

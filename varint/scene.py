@@ -112,6 +112,11 @@ SCHEMA = MappingProxyType({
         Key("velocity", "float", None, "m/s", "velocity in the region"),
     ),
     "fluid.perturbation[]": SHAPE_KEYS,
+    "initial.traveling_shock": (
+        Key("speed", "float", REQUIRED, "m/s", "speed c of a traveling shock moving towards +s into the gas of [fluid] (at rest); "
+            "the fluid and wall start on its profile (docs/theory.md §11; varint shock SCENE --speed C shows it)", low=0.0, low_open=True),
+        Key("position", "float", REQUIRED, "m", "position of the shock along the tube at t = 0"),
+    ),
     "rod": (
         Key("dimension", "int", 3, "", "3: full SE(3) motion; 2: planar motion in the x-y plane (3 unknowns per node)", low=2, high=3),
         Key("measure", "str", "reference", "", "reference: densities per reference length (mass per length fixed); paper: every density times |Gamma| as in Lagrangian_fluid_tube (drifts in energy for stiff stretching at large omega h, docs/validation.md)", choices=("paper", "reference")),
@@ -187,6 +192,7 @@ class Scene:
     wall: Section | None = None
     fluid: Section | None = None
     rod: Section | None = None
+    initial: Section | None = None
     text: str = ""
     path: str | None = None
     derived: dict = field(default_factory=dict)
@@ -392,8 +398,19 @@ class _Validator:
             rod = self.section({k: v for k, v in rr.items() if k not in ("ends", "initial", "load")}, "rod", "rod")
             for sub in ("ends", "initial", "load"):
                 rod[sub] = self.section(rr.get(sub, {}), f"rod.{sub}", f"rod.{sub}")
+        initial = None
+        if "initial" in raw:
+            ri = raw["initial"] if isinstance(raw["initial"], dict) else {}
+            if not isinstance(raw["initial"], dict):
+                self.bad("initial", "must be a table")
+            for name in ri:
+                if name != "traveling_shock":
+                    self.unknown("initial", name, ["traveling_shock"])
+            if "traveling_shock" in ri:
+                initial = Section(traveling_shock=self.section(ri["traveling_shock"], "initial.traveling_shock",
+                                                                "initial.traveling_shock"))
         scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall,
-                      fluid=fluid, rod=rod)
+                      fluid=fluid, rod=rod, initial=initial)
         if not self.problems:
             self.cross_checks(scene)
         return scene
@@ -432,6 +449,46 @@ class _Validator:
                     self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: {', '.join(valid)}")
         if sc.output.file is not None and not sc.output.file.strip():
             self.bad("output.file", "must not be empty")
+        if sc.initial is not None and sc.initial.traveling_shock is not None and not self.problems:
+            self.traveling_shock_checks(sc)
+
+    def traveling_shock_checks(self, sc):
+        """``[initial.traveling_shock]``: a straight tube with a linear wall and an ideal gas at rest, closed ends.
+
+        The traveling wave is solved here (varint.shocks) and handed to the initial fields: the fluid's as
+        ``fluid.traveling_shock`` (read by varint.initial), the wall's as an internal entry of
+        ``wall.perturbation`` whose profile is the wave's R(s) - R0.
+        """
+        kp = "initial.traveling_shock"
+        ts_keys = sc.initial.traveling_shock
+        f, w = sc.fluid, sc.wall
+        if f is None or f.model != "ideal-gas":
+            self.bad(kp, "needs a [fluid] with model = 'ideal-gas'")
+            return
+        if w is None or w.law != "linear":
+            self.bad(kp, "needs a [wall] with law = 'linear' (the wall law of the paper's traveling wave)")
+            return
+        if f.ends.s0 == "periodic":
+            self.bad(kp, "needs closed ends (the states far ahead and far behind differ)")
+        if f.initial or f.perturbation or w.perturbation:
+            self.bad(kp, "replaces the initial fields: remove fluid.initial, fluid.perturbation and wall.perturbation")
+        if f.velocity != 0.0:
+            self.bad("fluid.velocity", "must be 0: the gas ahead of a traveling shock is at rest")
+        x0 = ts_keys.position
+        if not 0.0 < x0 < sc.tube.length:
+            self.bad(f"{kp}.position", f"must lie inside the tube (0, {sc.tube.length:g}), got {x0:g}")
+        if self.problems:
+            return
+        from .errors import VarintError
+        from .shocks import traveling_shock, tube_of_scene
+
+        try:
+            wave = traveling_shock(tube_of_scene(sc), ts_keys.speed)
+        except VarintError as exc:
+            self.bad(f"{kp}.speed", str(exc))
+            return
+        f["traveling_shock"] = Section(wave=wave, position=x0)
+        w["perturbation"] = [Section(field="R", shape="traveling_shock", wave=wave, position=x0)]
 
     def rod_checks(self, sc):
         rod = sc.rod
