@@ -125,3 +125,24 @@ def test_divergence_starting_inside_the_roundoff_band_is_still_divergence():
     res = newton(lambda x: F((c + x) - c), lambda x: J((c + x) - c), np.array([0.1 * band]), np.ones(1), 1e-12, 60,
                  offset=np.full(1, c))
     assert not res.converged and res.message == "diverging" and res.iterations <= 8
+
+
+def test_a_slow_mode_of_another_kind_is_not_taken_for_round_off():
+    """A label far from the origin (absolute position 1e6, scale 1) beside a radius (scale 0.1, no
+    offset): when the chord iteration's fast label mode dies and the slow radius mode takes over, the
+    rate jumps from 0.01 to 0.9 inside the label's round-off band (2e-8).  The radius is then still
+    7e-9 off, far above its own floor (~1e-24): Newton must refresh and converge it, not stop at the
+    label's floor (one global floor did: 'stopped at the round-off floor' with that error)."""
+    import scipy.sparse as sp
+
+    from varint.newton import factorize
+
+    J = sp.diags([0.99, 0.1]).tocsc()
+    exact = np.array([1e-6 / 0.99, 1e-8])
+    b = J @ exact
+    scale = np.array([1.0, 0.1])
+    res = newton(lambda z: J @ z - b, lambda z: J, np.zeros(2), scale, 1e-12, 50,
+                 factor=factorize(sp.eye(2).tocsc()), offset=np.array([1e6, 0.0]))
+    assert res.converged
+    assert np.max(np.abs(res.z - exact) / scale) < 1e-12, (res.message, res.z - exact)
+    assert res.n_jacobian >= 1  # it had to refresh the stale factorisation to get there

@@ -25,6 +25,9 @@ STAGNATION_RATE = 0.5
 #: step is 0.02-2 times eps max|state / scale| for 10^3-10^5 parcels and c h / ds = 0.2-17: a fraction of
 #: an ulp of the absolute label positions, times the step's stiffness-to-mass ratio)
 ROUNDOFF_BAND = 100.0
+#: an update more than this many times the previous one is growth, not round-off (round-off updates
+#: wander by a few times from one iteration to the next, they do not grow by orders)
+MAX_ROUNDOFF_RATE = 10.0
 
 
 @dataclass
@@ -66,6 +69,18 @@ def _singular(J):
     return "Jacobian is not finite" if not np.all(np.isfinite(sp.csc_matrix(J).data)) else "singular Jacobian"
 
 
+def _within_floor(dz, z, mag, scale):
+    """Is every update within ROUNDOFF_BAND of the round-off floor of its kind of unknown?
+
+    A kind is the set of unknowns sharing one scale; its floor is eps max|z + offset| / scale over
+    the kind (round-off of a label's residual comes from its neighbours' positions as much as from its own).
+    """
+    kinds, which = np.unique(scale, return_inverse=True)
+    size = np.zeros(len(kinds))
+    np.maximum.at(size, which, (np.abs(z) + mag) / scale)
+    return bool(np.all(np.abs(dz) / scale <= ROUNDOFF_BAND * EPS * size[which]))
+
+
 def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refresh=RATE_REFRESH,
            chord_iterations=5, polish=0, offset=None):
     """Solve residual(z) = 0 from z0.
@@ -77,9 +92,10 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
     scale : ndarray
         Typical magnitude of each unknown; convergence is ``max|dz/scale| <= tol``,
         or the update has reached round-off: ``<= 8 eps max|z/scale|``; or it stagnates
-        below ``100 tol`` with a fresh Jacobian; or it stops contracting (an update at least
-        half the previous one after a contracting one) within ``ROUNDOFF_BAND`` of the
-        round-off floor ``eps max((|z| + |offset|) / scale)``.  A chord iteration contracts
+        below ``100 tol`` with a fresh Jacobian; or it stops contracting (an update between half
+        and ``MAX_ROUNDOFF_RATE`` times the previous one, after a contracting one) with every
+        component within ``ROUNDOFF_BAND`` of the round-off floor of its kind,
+        ``eps max((|z| + |offset|) / scale)`` over the unknowns sharing its scale.  A chord iteration contracts
         at a steady rate, so an update that suddenly stops shrinking that close to the floor is
         round-off, not a stale Jacobian: no refactorisation is spent on it.  Divergence (updates
         growing three times in a row) is still reported, whatever their size.
@@ -144,11 +160,14 @@ def newton(residual, jacobian, z0, scale, tol, max_iter, factor=None, rate_refre
             slow_inherited = jac_iter is None and it >= chord_iterations  # an old Jacobian needing many iterations
             if not np.isfinite(rate) or rate > rate_refresh or slow_inherited:
                 recent = jac_iter is not None and jac_iter >= it - 2
-                roundoff = ROUNDOFF_BAND * EPS * float(np.max((np.abs(z) + mag) / scale))
+                # each kind of unknown (those sharing a scale: labels, radii, multipliers) against the
+                # floor of its own kind; one global floor would let a radius beside 10^5 labels stop at
+                # the labels' floor, far above its own
+                at_floor = _within_floor(dz, z, mag, scale)
                 if recent and err <= 100 * tol:
                     # stagnating just above tol with an up-to-date Jacobian: round-off of an ill-conditioned system
                     return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stagnated at round-off")
-                if STAGNATION_RATE <= rate and err <= roundoff and rate_prev <= rate_refresh:
+                if STAGNATION_RATE <= rate < MAX_ROUNDOFF_RATE and at_floor and rate_prev <= rate_refresh:
                     # the chord was contracting and the update stopped shrinking near the floor of the
                     # state's round-off: the state cannot resolve a smaller update, a new Jacobian would not help
                     return NewtonResult(True, z, it, err, rate, factor, n_res, n_jac, "stopped at the round-off floor")
