@@ -145,6 +145,13 @@ def test_label_problem_names_the_parcel(periodic):
         t = s.copy()
         t[-1] += 1e-6
         assert "not the period" in G.label_problem(t, nR, ds, True)[1]
+        # the wrappers' own check (tube=False): ordered labels spanning many periods would make the
+        # kernels allocate (elements per parcel)^2 entries each; refused, in one line
+        many = np.linspace(0.0, 1000.0, 1001)
+        k, text = G.label_problem(many, nR, ds, True, tube=False)
+        assert "more than two periods" in text
+        gs, gR, _, _ = G.parcel_derivatives(many, np.full(nR, 0.1), ds, True, np.ones(1000), np.ones(1000), True, True)
+        assert np.all(np.isnan(gs))  # not finite (the step fails in one line), and nothing allocated per element
     else:
         t = s.copy()
         t[1:-1] += 0.95  # ordered up to s_{M-1}, but the interior labels beyond the closed end

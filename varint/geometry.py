@@ -67,7 +67,9 @@ def label_problem(s, nR, ds, periodic, tube=True):
     # (a NaN anywhere makes the minimum NaN, an infinite label an infinite end or a non-positive difference)
     if np.diff(s).min() > 0:
         if not tube:
-            if math.isfinite(s[0]) and math.isfinite(s[-1]):
+            # a periodic span beyond two periods is no lattice state, and the kernels' buffers grow with
+            # the number of elements each parcel covers: refuse it rather than allocate without bound
+            if math.isfinite(s[0]) and math.isfinite(s[-1]) and (not periodic or s[-1] - s[0] <= 2 * L):
                 return None
         elif periodic:
             if abs((s[-1] - s[0]) - L) <= 16 * EPS * max(L, abs(s[0]), abs(s[-1])):
@@ -89,6 +91,8 @@ def label_problem(s, nR, ds, periodic, tube=True):
     if fold.any():
         k = int(np.argmax(fold))
         return k, f"labels out of order at parcel {k} (s_{k} = {s[k]:.9g} m, s_{k + 1} = {s[k + 1]:.9g} m)"
+    if not tube and periodic and s[-1] - s[0] > 2 * L:
+        return len(s) - 1, f"labels span {s[-1] - s[0]:.6g} m, more than two periods ({2 * L:.6g} m)"
     if tube and periodic:
         span = s[-1] - s[0]
         if abs(span - L) > 16 * EPS * max(L, abs(s[0]), abs(s[-1])):
