@@ -396,6 +396,14 @@ def test_initial_traveling_shock_fields_are_the_profile(model):
     assert np.max(np.abs(m.eos.pressure(rho, m.S) / p_exp - 1)) < 1e-12
     u_lab = wave.profile(s - 0.8)[2]
     assert np.max(np.abs(m.v_init[m.layout["s"]] - u_lab[1:-1])) < 1e-9
+    if model == "dynamic":
+        # the wall moves with the wave: dR/dt = -c dR/dx, here against central differences of the profile
+        dx = 1e-7
+        dRdx = (wave.profile(m.node_s - 0.8 + dx)[0] - wave.profile(m.node_s - 0.8 - dx)[0]) / (2 * dx)
+        vR = m.v_init[m.layout["R"]]
+        assert np.max(np.abs(vR)) > 1.0
+        away = np.abs(m.node_s - 0.8) > 2 * dx  # the shock node: R' is continuous but the difference straddles it
+        assert np.max(np.abs(vR[away] + 447.0 * dRdx[away])) < 1e-5 * np.max(np.abs(vR))
     sim = varint.make_simulation(m)
     for _ in range(3):
         sim.step()

@@ -191,6 +191,10 @@ class Model:
                 v[sl] = u_lab[1:-1]
             if self.incompressible:
                 lam[self.layout["mu"].start - self.nq:] = sc.fluid.pressure
+            ts = getattr(sc.fluid, "traveling_shock", None)
+            if ts is not None and self.wall_dynamic:
+                # [initial.traveling_shock]: the wall moves with the wave, dR/dt = -c dR/dx
+                v[self.layout["R"]] = ts.wave.wall_velocity(self.node_s - ts.position)[: self.nR]
         self.mass = self._mass_vector()
         self.q_init, self.lam_init, self.v_init = q, lam, v
         self.p_init = self.mass * v
