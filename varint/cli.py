@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import os
+import shlex
 import sys
 
 import numpy as np
@@ -70,7 +71,7 @@ def cmd_run(args):
         k = _resumable_records(out, scene)
         if k:
             raise _Interrupted(f"interrupted; {out} holds {k} complete record{'s' if k > 1 else ''} (continue with: "
-                               f"varint run {args.scene} -o {out} --resume)") from None
+                               f"varint run {shlex.quote(str(args.scene))} -o {shlex.quote(str(out))} --resume)") from None
         raise
     st = sim.state
     print(f"wrote {out}: {st.n} steps to t = {st.t:.6g} s ({sim.stats.total_iterations} Newton iterations, "
