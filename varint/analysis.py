@@ -144,11 +144,19 @@ def highest_frequency_estimate(K, M):
     return float(np.sqrt(np.max(rows / M)))
 
 
+#: shifts of the shift-invert Lanczos solver, -shift x (Gershgorin bound on w^2), tried in turn: just
+#: below zero, so that rigid modes (K singular) are found with the lowest oscillations.  1e-8 keeps
+#: ARPACK accurate beside rigid modes (at 1e-14 their huge inverted eigenvalues cost a free rod's
+#: elastic pair 2e-4); a slender rod's lowest w^2 is ~1e-15 of the bound at L/r = 10^4, where 1e-8
+#: does not converge and 1e-14 does (the rigid modes' round-off, ~1e-19 of the bound, stays below it).
+SPARSE_SHIFTS = (1e-8, 1e-14)
+
+
 def sparse_modes_of(K, M, count, vectors=False):
     """The lowest ``count`` modes of K x = w^2 diag(M) x by shift-invert Lanczos (scipy eigsh).
 
-    For models too large for the dense solver.  The shift sits just below zero (1e-8 of the largest
-    w^2, estimated by :func:`highest_frequency_estimate`), so rigid modes and instabilities are found
+    For models too large for the dense solver.  The shift sits just below zero (:data:`SPARSE_SHIFTS` of
+    the largest w^2, estimated by :func:`highest_frequency_estimate`), so rigid modes and instabilities are found
     with the lowest oscillations; classification as in :func:`modes_of`.
     """
     import scipy.sparse.linalg as spla
@@ -157,7 +165,15 @@ def sparse_modes_of(K, M, count, vectors=False):
     big2 = highest_frequency_estimate(K, M) ** 2  # a bound, often well above the true highest w^2
     k = min(count, K.shape[0] - 2)
     # a fixed start vector: ARPACK's default is random, and results must not change between runs
-    w2, X = _arpack(spla.eigsh, K, k=k, M=sp.diags(M).tocsc(), sigma=-1e-8 * big2, which="LM", v0=np.ones(K.shape[0]))
+    for i, shift in enumerate(SPARSE_SHIFTS):
+        try:
+            # (shift-invert converges in tens of restarts when it converges: the first shift gets 300)
+            w2, X = _arpack(spla.eigsh, K, k=k, M=sp.diags(M).tocsc(), sigma=-shift * big2, which="LM",
+                            v0=np.ones(K.shape[0]), maxiter=300 if i < len(SPARSE_SHIFTS) - 1 else None)
+            break
+        except VarintError:
+            if i == len(SPARSE_SHIFTS) - 1:
+                raise
     order = np.argsort(w2)
     w2, X = w2[order], X[:, order]
     # eigenvalues near the shift come out with small absolute error: a threshold of 1e-9 of the
