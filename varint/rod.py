@@ -44,7 +44,7 @@ __all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "banded_jac
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
 #: refresh the Jacobian when a chord iteration contracts by less than this.  0.5 in 0.1, when a
-#: finite-difference Jacobian cost about 40 residuals; the exact one costs 8-15 (docs/performance.md,
+#: finite-difference Jacobian cost about 40 residuals; the exact one costs 7-15 (docs/performance.md,
 #: "Exact rod Jacobian"), and 0.15 takes the 100-element tumbling rod from 15 to 11.5 iterations per
 #: step, 1.8 to 1.5 ms.  (Iterating the chord to tol 1e-14 was tried: below the round-off floor of a
 #: stiff rod's step, ~2e-13 at cond(J) = 5e5, it stalled a 10^6-step run at step 61536.)
