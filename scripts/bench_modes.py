@@ -4,7 +4,7 @@ Prints the tables recorded in docs/performance.md, all measured in this one run:
 * rod_modes on a 3D clamped-free cantilever (the PyElastica section) at growing size, dense and
   sparse, the lowest 6 modes, with the first frequency against Timoshenko;
 * tube modes (closed dynamic-wall gas tube) at growing size, dense and sparse;
-* one complex-step derivative call of the rod (D1 L_d), 11 and 101 nodes, 3D.
+* one complex-step derivative call of the rod (D1 L_d, the reference path `derivative_complex_step`), 11 and 101 nodes, 3D.
 Run:  python scripts/bench_modes.py
 """
 
@@ -62,8 +62,8 @@ def derivative_table():
         model = build_model(rod_scene(nodes=nodes))
         Lam, r = model.Lam0, model.r0
         xi, r1 = np.full((nodes, 3), 0.01), r + 1e-3
-        model.derivative(1e-3, Lam, r, xi, r1, 0)  # compile / warm the kernel
-        t = best_of(lambda: [model.derivative(1e-3, Lam, r, xi, r1, 0) for _ in range(300)], 5)[0]
+        model.derivative_complex_step(1e-3, Lam, r, xi, r1, 0)  # compile / warm the kernel
+        t = best_of(lambda: [model.derivative_complex_step(1e-3, Lam, r, xi, r1, 0) for _ in range(300)], 5)[0]
         print(f"| {nodes} | {t / 300 * 1e6:.0f} |", flush=True)
 
 
