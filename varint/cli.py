@@ -1,4 +1,4 @@
-"""Command line: ``varint run | check | info | plot | static | modes | shock``.
+"""Command line: ``varint run | check | info | plot | static | modes | sweep | shock``.
 
 Every failure the user can cause (bad scene, unreadable file, an output that would
 replace a file, Newton failure) prints one line per problem prefixed ``varint: error:``
@@ -132,61 +132,17 @@ def cmd_plot(args):
     return 0
 
 
-def _turned(info):
-    """How far a steady-rotation search turned the rod, in words ("" when not noticeably)."""
-    deg = info.get("turned_deg", 0.0)
-    return (f"the rod's end-to-end chord turned by {deg:.1f} deg from the scene's shape (spin about no principal "
-            "axis of it)") if deg > 1.0 else ""
-
-
-def _loads(model):
-    """The scene keys of a rod's static loads (empty when there are none)."""
-    names = [("rod.load.force", model.force), ("rod.load.torque", model.torque), ("environment.gravity", model.g)]
-    return [name for name, v in names if np.any(v)]
-
-
 def cmd_modes(args):
-    if args.count < 1:
-        raise VarintError(f"modes: -n/--count must be >= 1, got {args.count}")
-    from .analysis import modes
-    from .model import build_model
-    from .rod import RodModel
-    from .rod_statics import rod_modes
+    from .modes_api import scene_modes
 
-    model = build_model(_load_scene(args.scene))
-    frame = None
-    note = None
-    if isinstance(model, RodModel):
-        spin = model.spin  # rod.initial.angular_velocity
-        if args.about == "static":
-            from .rod_statics import static_equilibrium
-
-            # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
-            Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
-            res = rod_modes(model, count=args.count, Lam=Lam, r=r)
-            if _turned(info):
-                print(f"# the steady rotation found has {_turned(info)}", file=sys.stderr)
-        else:
-            res = rod_modes(model, count=args.count)
-            loads = _loads(model)
-            if loads:
-                note = (f"{args.scene} has loads ({', '.join(loads)}): these modes are about the initial, unloaded "
-                        "state, not the loaded equilibrium" + ("" if model.free else "; use --about static for that"))
-                print(f"varint: note: {note}", file=sys.stderr)
-        if np.any(spin):
-            frame = {"angular_velocity": [float(x) for x in spin],
-                     "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
-    else:
-        if args.about == "static":
-            raise VarintError(f"{args.scene}: --about static is available for [rod] scenes only")
-        res = modes(model, count=args.count)
+    d = scene_modes(_load_scene(args.scene), count=args.count, about=args.about, source=args.scene)
+    if "remark" in d:
+        print(f"# {d['remark']}", file=sys.stderr)
+    if "note" in d:
+        print(f"varint: note: {d['note']}", file=sys.stderr)
+    res, frame = d["modes"], d.get("frame")
     if args.json:
-        d = {"modes": res, "about": args.about}
-        if note is not None:
-            d["note"] = note
-        if frame is not None:
-            d["frame"] = frame
-        print(json.dumps(_jsonable(d)))
+        print(json.dumps(_jsonable({k: d[k] for k in ("modes", "about", "note", "frame") if k in d})))
     else:
         if frame is not None:
             print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
@@ -234,6 +190,8 @@ def cmd_static(args):
         w.close()
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
+    from .modes_api import _turned
+
     if _turned(info):
         what += f", with {_turned(info)}"
     print(f"wrote {out}: {what} in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
@@ -266,6 +224,18 @@ def cmd_shock(args):
     lo, hi = d["speed_range"]
     print(f"  admissible speeds: {lo:.6g} < c < {hi:.6g} m/s")
     return 0
+
+
+def cmd_sweep(args):
+    """``varint sweep SCENE --vary KEY=... --analysis run|modes --out DIR``: docs/output.md, "Sweeps"."""
+    from .sweep import sweep
+
+    r = sweep(args.scene, args.vary, args.analysis, args.out, scheduler=args.scheduler, workers=args.workers,
+              count=args.count, about=args.about)
+    parts = [f"{r['ok']} ok", f"{r['failed']} failed"] + ([f"{r['crashed']} crashed (retried by a re-run)"] if r["crashed"] else [])
+    print(f"wrote {r['table']}: {r['points']} points ({r['computed']} computed, {r['skipped']} already done): "
+          + ", ".join(parts))
+    return 1 if r["crashed"] else 0
 
 
 def build_parser():
@@ -303,6 +273,19 @@ def build_parser():
     m.add_argument("--about", choices=("initial", "static"), default="initial",
                    help="linearise about the scene's initial state (default) or its loaded static equilibrium / steady rotation (rods)")
     m.set_defaults(func=cmd_modes)
+    sw = sub.add_parser("sweep", help="run or linearise a scene over a product of key values, on a Dask cluster; DIR/sweep.csv")
+    sw.add_argument("scene")
+    sw.add_argument("--vary", action="append", default=[], metavar="KEY=START:STOP:NUM|KEY=V1,V2,...",
+                    help="a dotted scene key (rod.initial.angular_velocity[0], fluid.perturbation[0].amplitude) and "
+                         "its values: NUM from START to STOP inclusive, or a comma list; repeat for a product")
+    sw.add_argument("--analysis", choices=("run", "modes"), required=True,
+                    help="run: each point integrated into DIR/point_NNNN.h5; modes: as varint modes")
+    sw.add_argument("--out", required=True, metavar="DIR", help="folder of sweep.csv (and the run files); a re-run skips its finished points")
+    sw.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler (default: a local cluster)")
+    sw.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)")
+    sw.add_argument("-n", "--count", type=int, default=20, help="modes: number of lowest modes per point (>= 1)")
+    sw.add_argument("--about", choices=("initial", "static"), default="initial", help="modes: as for varint modes")
+    sw.set_defaults(func=cmd_sweep)
     sh = sub.add_parser("shock", help="the traveling shock of a tube scene (linear wall, ideal gas at rest ahead)")
     sh.add_argument("scene")
     g = sh.add_mutually_exclusive_group(required=True)

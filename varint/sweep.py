@@ -1,0 +1,557 @@
+"""``varint sweep``: one scene over the product of values of some of its keys, on a Dask cluster.
+
+A sweep point is the scene's TOML text with the varied keys set (parsed with :mod:`tomllib`, the
+values set, written back by :func:`to_toml`).  Every point is validated by
+:func:`varint.scene.parse_scene` before anything runs.  Each point is then one task on a
+``dask.distributed`` cluster (a local one, one single-threaded worker process per core, or an
+existing one by its scheduler's address): ``run`` integrates it into ``DIR/point_NNNN.h5``,
+``modes`` computes its modes as ``varint modes`` does (:func:`varint.modes_api.scene_modes`).
+``DIR/sweep.csv`` gets one row per point as the points finish (docs/output.md); a point that fails
+with a :class:`VarintError` is a row with its one-line error; a re-run skips the points already in
+the table (by their key values).
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import itertools
+import json
+import math
+import os
+import re
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .errors import OutputError, SceneError, VarintError
+
+__all__ = ["Vary", "parse_vary", "resolve_key", "set_key", "to_toml", "point_texts", "sweep", "compute_point"]
+
+ANALYSES = ("run", "modes")
+#: result columns of the modes analysis (docs/output.md)
+MODES_COLUMNS = ("growth_rate", "frequency", "lowest_frequency")
+#: the columns after the results
+TAIL_COLUMNS = ("point", "status", "error", "file")
+
+
+class SweepError(VarintError):
+    """A sweep that cannot start: a bad --vary, an invalid point, a table of another sweep."""
+
+
+# ---------------------------------------------------------------------------
+# keys
+
+
+_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+
+
+class Vary:
+    """One ``--vary`` option resolved against the scene schema.
+
+    ``key``: as written (the CSV column); ``path``: ``[(name, index or None), ...]``;
+    ``decl``: the :class:`varint.scene.Key` declaration; ``values``: the values, typed by its kind.
+    """
+
+    def __init__(self, key, path, decl, values):
+        self.key, self.path, self.decl, self.values = key, path, decl, values
+
+    def __repr__(self):  # pragma: no cover - debugging aid
+        return f"Vary({self.key!r}, {self.values!r})"
+
+
+def _all_keys():
+    from .scene import SCHEMA
+
+    out = []
+    for sec, keys in SCHEMA.items():
+        prefix = sec.replace("[]", "[0]")
+        out += [f"{prefix}.{k.name}" if prefix else k.name for k in keys]
+    return out
+
+
+def resolve_key(key):
+    """``"fluid.perturbation[0].amplitude"`` -> (path, Key declaration); raises :class:`SweepError`.
+
+    Tables are dotted; an array of tables takes an index (``[0]``); a vector key (kind ``vec3``)
+    takes the index of its component.
+    """
+    from .scene import SCHEMA
+
+    where = f"--vary {key}"
+    parts = key.split(".")
+    path = []
+    for p in parts:
+        m = _SEGMENT.match(p)
+        if not m:
+            raise SweepError(f"{where}: not a dotted scene key (like rod.initial.angular_velocity[0] or time.step)")
+        path.append((m.group(1), None if m.group(2) is None else int(m.group(2))))
+    table = ".".join(n + ("[]" if i is not None else "") for n, i in path[:-1])
+    leaf, index = path[-1]
+    decl = None
+    if table in SCHEMA:
+        decl = next((k for k in SCHEMA[table] if k.name == leaf), None)
+    if decl is None:
+        bare = re.sub(r"\[\d+\]", "[0]", key)
+        near = difflib.get_close_matches(bare, _all_keys(), n=1, cutoff=0.6)
+        hint = f" (did you mean '{near[0]}'?)" if near else ""
+        arrays = [n[:-2] for n in SCHEMA if n.endswith("[]")]
+        for n in arrays:  # an array of tables written without its index
+            if (table + ".").startswith(n + ".") and f"{n}[]" not in table:
+                hint = f" ({n} is an array of tables: index it, e.g. {n}[0].{key[len(n) + 1:]})"
+        raise SweepError(f"{where}: unknown scene key{hint}")
+    if decl.kind == "vec3":
+        if index is None:
+            raise SweepError(f"{where}: is a vector; vary one component, e.g. {key}[0]")
+        if index > 2:
+            raise SweepError(f"{where}: a vector has components [0], [1], [2]")
+    elif index is not None:
+        raise SweepError(f"{where}: is a single value ({decl.kind}), not a vector: remove [{index}]")
+    elif decl.kind not in ("float", "int", "str"):
+        raise SweepError(f"{where}: a {decl.kind} key cannot be varied")
+    return path, decl
+
+
+def _number(text, decl, key):
+    try:
+        x = float(text)
+    except ValueError:
+        raise SweepError(f"--vary {key}: {text.strip()!r} is not a number") from None
+    if not math.isfinite(x):
+        raise SweepError(f"--vary {key}: {text.strip()!r} is not a finite number")
+    if decl.kind == "int":
+        if not x.is_integer():
+            raise SweepError(f"--vary {key}: is a whole number, got {text.strip()}")
+        return int(x)
+    return x
+
+
+def parse_vary(spec):
+    """``KEY=START:STOP:NUM`` (NUM values from START to STOP, inclusive) or ``KEY=V1,V2,...`` -> :class:`Vary`.
+
+    Numbers are floats, or ints when the scene key is an int; a string key takes a comma list.
+    Raises :class:`SweepError` naming the option.
+    """
+    if "=" not in spec:
+        raise SweepError(f"--vary {spec}: expected KEY=START:STOP:NUM or KEY=V1,V2,...")
+    key, _, rhs = spec.partition("=")
+    key = key.strip()
+    if not key:
+        raise SweepError(f"--vary {spec}: no key before '='")
+    path, decl = resolve_key(key)
+    rhs = rhs.strip()
+    if not rhs:
+        raise SweepError(f"--vary {key}: no values after '='")
+    if ":" in rhs:
+        parts = rhs.split(":")
+        if len(parts) != 3:
+            raise SweepError(f"--vary {key}: a range is START:STOP:NUM, got {rhs!r}")
+        if decl.kind == "str":
+            raise SweepError(f"--vary {key}: is a string; give a comma list of values")
+        start, stop = (_number(p, _FLOAT, key) for p in parts[:2])  # int keys: checked below
+        try:
+            num = int(parts[2])
+        except ValueError:
+            raise SweepError(f"--vary {key}: NUM must be a whole number >= 1, got {parts[2].strip()!r}") from None
+        if num < 1:
+            raise SweepError(f"--vary {key}: NUM must be >= 1, got {num}")
+        values = [float(x) for x in np.linspace(start, stop, num)]
+        if num == 1:
+            values = [start]
+        if decl.kind == "int":
+            bad = [x for x in values if not float(x).is_integer()]
+            if bad:
+                raise SweepError(f"--vary {key}: is a whole number, but {rhs} gives {_fmt(bad[0])}")
+            values = [int(x) for x in values]
+    else:
+        items = [v.strip() for v in rhs.split(",")]
+        if any(not v for v in items):
+            raise SweepError(f"--vary {key}: empty value in {rhs!r}")
+        values = items if decl.kind == "str" else [_number(v, decl, key) for v in items]
+    if len(set(values)) != len(values):
+        raise SweepError(f"--vary {key}: a value is repeated in {rhs!r}")
+    return Vary(key, path, decl, values)
+
+
+class _Float:
+    kind = "float"
+
+
+_FLOAT = _Float()
+
+
+def _fmt(v):
+    """A value as the CSV writes it (and as a re-run recognises it): repr of floats (round-trips)."""
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def set_key(doc, path, value):
+    """Set ``path`` (from :func:`resolve_key`) in the TOML document ``doc`` (a dict, changed in place).
+
+    Missing tables are created; an array-of-tables entry must exist; a vector component starts from
+    the key's default when the vector is absent.  Raises :class:`SweepError`.
+    """
+    from .scene import REQUIRED, SCHEMA
+
+    node = doc
+    shown = []
+    for name, index in path[:-1]:
+        shown.append(name)
+        if index is None:
+            child = node.setdefault(name, {})
+            if not isinstance(child, dict):
+                raise SweepError(f"{'.'.join(shown)}: is not a table in the scene")
+            node = child
+        else:
+            arr = node.get(name)
+            if not isinstance(arr, list) or index >= len(arr):
+                have = len(arr) if isinstance(arr, list) else 0
+                raise SweepError(f"{'.'.join(shown)}[{index}]: the scene has {have} [[{'.'.join(shown)}]] "
+                                 f"table{'s' if have != 1 else ''}")
+            node = arr[index]
+            shown[-1] += f"[{index}]"
+    name, index = path[-1]
+    if index is None:
+        node[name] = value
+        return doc
+    vec = node.get(name)
+    if vec is None:
+        table = ".".join(n + ("[]" if i is not None else "") for n, i in path[:-1])
+        decl = next(k for k in SCHEMA[table] if k.name == name)
+        vec = list(decl.default) if decl.default not in (None, REQUIRED) else [0.0, 0.0, 0.0]
+    if not isinstance(vec, list) or index >= len(vec):
+        raise SweepError(f"{'.'.join(shown + [name])}: is not a vector with a component [{index}] in the scene")
+    vec = list(vec)
+    vec[index] = value
+    node[name] = vec
+    return doc
+
+
+# ---------------------------------------------------------------------------
+# TOML out
+
+
+_BARE = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _key(k):
+    return k if _BARE.match(k) else json.dumps(k, ensure_ascii=False)
+
+
+def _value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)  # a JSON string is a TOML basic string
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")  # dates: no scene key has one
+
+
+def _is_table_array(v):
+    return isinstance(v, list) and v and all(isinstance(x, dict) for x in v)
+
+
+def _table(lines, prefix, d):
+    for k, v in d.items():
+        if not isinstance(v, dict) and not _is_table_array(v):
+            lines.append(f"{_key(k)} = {_value(v)}")
+    for k, v in d.items():
+        name = f"{prefix}.{_key(k)}" if prefix else _key(k)
+        if isinstance(v, dict):
+            lines.append(f"\n[{name}]")
+            _table(lines, name, v)
+        elif _is_table_array(v):
+            for item in v:
+                lines.append(f"\n[[{name}]]")
+                _table(lines, name, item)
+
+
+def to_toml(doc):
+    """A TOML document (as :func:`tomllib.loads` returns it) as text; ``tomllib.loads(to_toml(d)) == d``.
+
+    Tables become ``[sections]`` (inline tables too), arrays of tables ``[[sections]]``, at any depth.
+    Comments of the original are not kept.
+    """
+    lines = []
+    _table(lines, "", doc)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+# ---------------------------------------------------------------------------
+# points
+
+
+def point_texts(text, varies, source=None):
+    """Every point of the sweep: ``[(values tuple, TOML text), ...]`` in product order, each validated.
+
+    Raises :class:`SweepError` (bad key for this scene) or :class:`SceneError` (an invalid point), naming
+    the point and its key values, before anything runs.
+    """
+    from .scene import parse_scene
+
+    base = tomllib.loads(text)
+    out = []
+    for i, values in enumerate(itertools.product(*(v.values for v in varies))):
+        doc = _copy(base)
+        where = ", ".join(f"{v.key} = {_fmt(x)}" for v, x in zip(varies, values))
+        try:
+            for v, x in zip(varies, values):
+                set_key(doc, v.path, x)
+        except SweepError as exc:
+            raise SweepError(f"{source + ': ' if source else ''}{exc}") from None
+        t = to_toml(doc)
+        try:
+            parse_scene(t)
+        except SceneError as exc:
+            raise SceneError([f"sweep point {i} ({where}): {p}" for p in exc.problems], source=source) from None
+        out.append((values, t))
+    return out
+
+
+def _copy(x):
+    if isinstance(x, dict):
+        return {k: _copy(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_copy(v) for v in x]
+    return x
+
+
+def compute_point(text, analysis, out=None, count=20, about="initial"):
+    """One point (runs on a Dask worker): ``{"status": "ok", results...}`` or ``{"status": "failed", "error": line}``.
+
+    A :class:`VarintError` is the point's failure; any other exception is a bug in varint or a lost
+    worker, recorded as status "crashed" (retried by a re-run).
+    """
+    from .scene import parse_scene
+
+    try:
+        with np.errstate(all="ignore"):  # as the CLI: Newton's excursions fail with one line, not warnings
+            scene = parse_scene(text)
+            if analysis == "modes":
+                from .modes_api import scene_modes, strongest
+
+                return {"status": "ok", **strongest(scene_modes(scene, count=count, about=about)["modes"])}
+            from .io import read_run, summary
+            from .runner import run_scene
+
+            if out is not None and os.path.exists(out):
+                os.remove(out)  # left by an unfinished attempt (finished points are never computed again)
+            run_scene(scene, out, progress=False)
+            return {"status": "ok", **_run_results(read_run(out), summary(out))}
+    except VarintError as exc:
+        return {"status": "failed", "error": " | ".join(str(exc).splitlines())}
+    except Exception as exc:  # noqa: BLE001 - recorded, so that one point does not stop the sweep
+        return {"status": "crashed", "error": f"{type(exc).__name__}: {' | '.join(str(exc).splitlines())}"}
+
+
+def _run_results(run, summ):
+    """The final scalar monitors of a run, then the summary's deviations (``varint info``)."""
+    res = {"t_end": float(run["time"][-1]), "records": int(len(run["time"]))}
+    for name in sorted(run["monitors"]):
+        v = run["monitors"][name]
+        if v.ndim == 1 and len(v):
+            x = v[-1].item()
+            res[name] = x
+    for k, v in summ.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and k not in ("records", "step"):
+            res[k] = v
+    return res
+
+
+# ---------------------------------------------------------------------------
+# the table
+
+
+def _read_table(path):
+    if not path.exists():
+        return [], []
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            r = csv.DictReader(f)
+            rows = list(r)
+            return list(r.fieldnames or []), rows
+    except (OSError, csv.Error, UnicodeDecodeError) as exc:
+        raise OutputError(f"{path}: cannot read the sweep table ({exc})") from None
+
+
+def _write_table(path, columns, rows):
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: ("" if row.get(k) is None else _cell(row.get(k))) for k in columns})
+    os.replace(tmp, path)
+
+
+def _cell(v):
+    if isinstance(v, float):
+        return repr(v)
+    return v
+
+
+def _columns(keys, analysis, rows, old):
+    result = list(MODES_COLUMNS) if analysis == "modes" else []
+    for c in old:
+        if c not in keys and c not in TAIL_COLUMNS and c not in result:
+            result.append(c)
+    for row in rows:
+        for c in row:
+            if c not in keys and c not in TAIL_COLUMNS and c not in result:
+                result.append(c)
+    tail = [c for c in TAIL_COLUMNS if not (c == "file" and analysis == "modes")]
+    return list(keys) + result + tail
+
+
+# ---------------------------------------------------------------------------
+# the sweep
+
+
+def _client(scheduler, workers):
+    """A ``(client, cluster)`` pair: a local cluster of ``workers`` single-threaded processes, or ``scheduler``'s."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    # the scheduler's and nannies' INFO lines (start, register, close) are not the user's business
+    for name in ["distributed", *logging.root.manager.loggerDict]:
+        if name.startswith("distributed"):
+            logging.getLogger(name).setLevel(logging.ERROR)
+    if scheduler is not None:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise SweepError(f"--scheduler {scheduler}: cannot connect ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
+                           scheduler_kwargs={"dashboard": False})
+    return Client(cluster), cluster
+
+
+def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=None, count=20, about="initial",
+          progress=None):
+    """Run a sweep; returns a summary dict (``table``, ``points``, ``computed``, ``skipped``, ``ok``, ``failed``, ``crashed``).
+
+    Raises :class:`VarintError` (one line per problem) before anything runs when a --vary, a point
+    or the output directory is wrong.
+    """
+    from .scene import load_scene
+
+    if analysis not in ANALYSES:
+        raise SweepError(f"--analysis: choose one of {', '.join(ANALYSES)}, got {analysis!r}")
+    if not vary_specs:
+        raise SweepError("give at least one --vary KEY=START:STOP:NUM or KEY=V1,V2,...")
+    if workers is not None and workers < 1:
+        raise SweepError(f"--workers must be >= 1, got {workers}")
+    if workers is not None and scheduler is not None:
+        raise SweepError("--workers sizes a local cluster; with --scheduler the cluster has its own workers")
+    if count < 1:
+        raise SweepError(f"-n/--count must be >= 1, got {count}")
+    scene = load_scene(scene_path)
+    varies = [parse_vary(s) for s in vary_specs]
+    keys = [v.key for v in varies]
+    dup = [k for k in keys if keys.count(k) > 1]
+    if dup:
+        raise SweepError(f"--vary {dup[0]}: given twice")
+    points = point_texts(scene.text, varies, source=str(scene_path))
+
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: is not a directory")
+    if not out.parent.is_dir():
+        raise OutputError(f"{out}: directory {out.parent} does not exist")
+    table = out / "sweep.csv"
+    meta_path = out / "sweep.json"
+    meta = {"scene": str(scene_path), "scene_toml": scene.text, "analysis": analysis, "keys": keys}
+    if analysis == "modes":
+        meta.update(count=count, about=about)
+    old_cols, old_rows = _read_table(table)
+    if meta_path.exists() or old_rows:
+        try:
+            old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            raise OutputError(f"{out}: has a sweep.csv without a readable sweep.json; use another --out directory") from None
+        for what, name in (("scene_toml", "scene (its text differs)"), ("analysis", "--analysis"), ("keys", "--vary keys"),
+                           ("count", "-n/--count"), ("about", "--about")):
+            if old_meta.get(what) != meta.get(what):
+                raise OutputError(f"{out}: holds a sweep with another {name}: {old_meta.get(what) if what != 'scene_toml' else old_meta.get('scene')!r}; "
+                                  "use another --out directory")
+    # finished points (ok or failed) are kept and skipped; crashed ones are computed again
+    kept = {}
+    for row in old_rows:
+        ident = tuple(row.get(k, "") for k in keys)
+        if row.get("status") in ("ok", "failed"):
+            kept[ident] = row
+    todo = []
+    rows = dict(kept)
+    next_number = 1 + max((int(r["point"]) for r in kept.values() if str(r.get("point", "")).isdigit()), default=-1)
+    for values, text in points:
+        ident = tuple(_fmt(x) for x in values)
+        if ident in kept:
+            continue
+        todo.append((next_number, ident, values, text))
+        next_number += 1
+    out.mkdir(exist_ok=True)
+    meta_path.write_text(json.dumps(meta, indent=1), encoding="utf-8")
+    result = {"table": str(table), "points": len(points), "skipped": len(points) - len(todo), "computed": len(todo)}
+
+    def save():
+        cols = _columns(keys, analysis, rows.values(), old_cols)
+        order = sorted(rows.values(), key=lambda r: int(r["point"]) if str(r.get("point", "")).isdigit() else 1 << 30)
+        _write_table(table, cols, order)
+
+    if todo:
+        from tqdm import tqdm
+
+        client, cluster = _client(scheduler, workers)
+        try:
+            futures = {}
+            for number, ident, values, text in todo:
+                f = out / f"point_{number:04d}.h5" if analysis == "run" else None
+                # an absolute path: the workers of an existing cluster need not share this working directory
+                fut = client.submit(compute_point, text, analysis, str(f.resolve()) if f else None, count, about, pure=False)
+                futures[fut] = (number, ident, f)
+            from distributed import as_completed
+
+            bar = tqdm(total=len(todo), unit="point", desc="sweep", file=sys.stderr,
+                       disable=not (sys.stderr.isatty() if progress is None else progress))
+            try:
+                for fut in as_completed(futures):
+                    number, ident, f = futures[fut]
+                    try:
+                        res = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a lost worker: the point is retried by a re-run
+                        res = {"status": "crashed", "error": f"{type(exc).__name__}: {' | '.join(str(exc).splitlines())}"}
+                    row = dict(zip(keys, ident))
+                    row.update(res)
+                    row["point"] = number
+                    if f is not None and f.exists():  # a failed run keeps the records before its failure
+                        row["file"] = f.name
+                    rows[ident] = row
+                    save()
+                    bar.update(1)
+            finally:
+                bar.close()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    else:
+        save()
+    st = [r.get("status") for r in rows.values()]
+    result.update(ok=st.count("ok"), failed=st.count("failed"), crashed=st.count("crashed"))
+    return result
