@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from .errors import SolverError
+from .forces import Declaration, TipTorque, derive_invariants
 from .lie import cay, cay_inv
 from .newton import newton, newton_damped
 from .stepper import State, StepStats
@@ -135,6 +136,8 @@ class RodModel:
         load = rod.load or {}
         self.force = np.array(load.get("force") or (0.0, 0.0, 0.0), dtype=float)
         self.torque = np.array(load.get("torque") or (0.0, 0.0, 0.0), dtype=float)
+        #: non-conservative forces (discrete Lagrange-d'Alembert, varint.forces)
+        self.forces = [TipTorque(self.torque)] if np.any(self.torque) else []
         # active per-node directions: (dr_x, dr_y, dr_z, sigma_x, sigma_y, sigma_z)
         dirs = np.array([True] * 6) if self.dim == 3 else np.array([True, True, False, False, False, True])
         mask = np.tile(dirs, (self.N + 1, 1))
@@ -376,10 +379,8 @@ class RodModel:
         blocks = np.empty((self.N, 12, 12))
         _k_static_blocks(self.ds, rhoA, inertia, J, K, g, self.paper_measure, np.ascontiguousarray(Lam, dtype=np.float64),
                          np.ascontiguousarray(r, dtype=np.float64), self.mask, EPS_CS, blocks)
-        if np.any(self.torque):
-            # Lambda_N^T T under Lambda_N cay(sigma): d/dsigma = hat(Lambda_N^T T)
-            v = load_factor * (Lam[-1].T @ self.torque)
-            blocks[-1, 9:, 9:] += np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+        for f in self.forces:  # the tip torque's generalised force turns with the tip frame
+            blocks[-1, 9:, 9:] += load_factor * f.stiffness_block(Lam)
         return self.assemble(blocks)
 
     def derivative_complex_step(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
@@ -410,29 +411,50 @@ class RodModel:
             out[c::2, d] += dn[b, c::2]
         return out
 
-    def torque_force(self, h, Lam):
-        """Lagrange-d'Alembert discrete force (h/2)(0, Lambda_N^T T) at one level, shape (N+1, 6)."""
+    def discrete_forces(self, h, Lam):
+        """Sum of the Lagrange-d'Alembert forces at one level (f^- with the level-n frames, f^+ with
+        level n+1), shape (N+1, 6)."""
         f = np.zeros((self.N + 1, 6))
-        if np.any(self.torque):
-            f[-1, 3:] = 0.5 * h * (Lam[-1].T @ self.torque)
+        for force in self.forces:
+            f += force.discrete(h, Lam)
         return f
 
+    def generalised_forces(self, Lam, load_factor=1.0):
+        """Static generalised force of the non-conservative forces, (N+1, 6)."""
+        f = np.zeros((self.N + 1, 6))
+        for force in self.forces:
+            f += load_factor * force.generalised(Lam)
+        return f
+
+    def declarations(self):
+        """What each term, force and end does to the invariants (varint.forces.Declaration)."""
+        decl = [Declaration(name) for name in ("rod_kinetic", "bending_torsion", "stretch_shear")]
+        if np.any(self.g):
+            decl.append(Declaration("gravity", {"linear_momentum": "linear_momentum_transverse_to_gravity",
+                                                "angular_momentum": "angular_momentum_along_gravity"}))
+        if np.any(self.force):  # a dead force at the tip: conservative (its potential -F.r_N), not symmetric
+            decl.append(Declaration("tip_force", {"linear_momentum": None, "angular_momentum": None}))
+        decl += [f.declaration for f in self.forces]
+        ends = (self.scene.rod.ends.s0, self.scene.rod.ends.sL)
+        if ends == ("pinned", "pinned") and self.dim == 3:
+            # bearings at both ends: turning about the line through them keeps both pins in place
+            decl.append(Declaration("ends", {"linear_momentum": None,
+                                             "angular_momentum": "angular_momentum_about_the_bearing_axis"}))
+        elif any(e in ("clamped", "pinned") for e in ends):
+            decl.append(Declaration("ends", {"linear_momentum": None, "angular_momentum": None}))
+        return decl
+
     def expected_invariants(self):
-        """From the terms present: supports and tip loads break the symmetries, gravity breaks them along g."""
-        inv = [] if np.any(self.torque) else ["energy"]
-        free = self.mask[0].all() and self.mask[-1].all() if self.dim == 3 else not (~self.mask[[0, -1]][:, [0, 1, 5]]).any()
-        if free and not np.any(self.force) and not np.any(self.torque):
-            g = np.any(self.g)
-            inv += ["linear_momentum_transverse_to_gravity" if g else "linear_momentum",
-                    "angular_momentum_along_gravity" if g else "angular_momentum"]
-        return inv
+        """Derived from the declarations of the terms, forces and ends (varint.forces.derive_invariants)."""
+        return derive_invariants(self.declarations())
 
     def describe(self):
         s = self.section
         return {"effects": ["rod"], "unknowns": {"r": self.layout["r"], "Lambda": self.layout["Lambda"]},
                 "unknowns_total": self.nz, "inertial_unknowns": self.nz, "algebraic_unknowns": 0,
                 "terms": ["rod_kinetic", "bending_torsion", "stretch_shear"] + (["gravity"] if np.any(self.g) else [])
-                + (["tip_force"] if np.any(self.force) else []) + (["tip_torque"] if np.any(self.torque) else []),
+                + (["tip_force"] if np.any(self.force) else []),
+                "forces": [f.declaration.name for f in self.forces],
                 "invariants": self.expected_invariants(), "scheme": "midpoint",
                 "initial_shape": "given" if self.steady_rotation is None else
                 f"steady rotation ({self.steady_rotation['iterations']} Newton iterations, chord turned "
@@ -542,7 +564,7 @@ class RodSimulation:
         """pi_n + D1 L_d + f^- on the active components (pi_n given as (N+1, 6): p, Pi)."""
         m = self.model
         r_1, xi = self._split(z, Lam_n, r_n)
-        R = pi_n + m.derivative(self.h, Lam_n, r_n, xi, r_1, level=0) + m.torque_force(self.h, Lam_n)
+        R = pi_n + m.derivative(self.h, Lam_n, r_n, xi, r_1, level=0) + m.discrete_forces(self.h, Lam_n)
         R[:, :3] = np.einsum("nji,nj->ni", Lam_n, R[:, :3])
         return R[m.mask]
 
@@ -610,7 +632,7 @@ class RodSimulation:
             raise SolverError(f"step {st.n + 1} (t = {st.t + self.h:.6g} s): node {j} turns by {deg:.0f} degrees in one "
                               "step (more than 90); reduce time.step", step=st.n + 1, time=st.t + self.h)
         Lam_1 = reorthonormalize(Lam_n @ cay(xi))
-        D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.torque_force(self.h, Lam_1)
+        D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.discrete_forces(self.h, Lam_1)
         p1 = np.concatenate([D2[:, :3].ravel(), D2[:, 3:].ravel()])
         v = np.concatenate([np.einsum("nji,nj->ni", Lam_n, r_1 - r_n).ravel(), xi.ravel()])
         if self.floating_origin:

@@ -28,9 +28,7 @@ def _potential_gradient(model, Lam, r, load_factor=1.0):
     # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and sum both levels
     g = (model.derivative(1.0, Lam, r, xi, r, level=0, load_factor=load_factor)
          + model.derivative(1.0, Lam, r, xi, r, level=1, load_factor=load_factor))
-    if np.any(model.torque):
-        g[-1, 3:] += load_factor * (Lam[-1].T @ model.torque)
-    return g
+    return g + model.generalised_forces(Lam, load_factor)
 
 
 def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
