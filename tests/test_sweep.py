@@ -13,7 +13,7 @@ from varint.cli import main
 from varint.errors import SceneError, VarintError
 from varint.modes_api import strongest
 from varint.scene import parse_scene
-from varint.sweep import parse_vary, point_texts, set_key, to_toml
+from varint.sweep import parse_vary, point_numbers, point_texts, set_key, to_toml
 
 from helpers import gas_scene
 from helpers import to_toml as dict_to_toml
@@ -117,6 +117,15 @@ def test_points_are_the_product_of_the_values_each_validated():
     with pytest.raises(SceneError) as e:
         point_texts(text, [parse_vary("tube.nodes=11,2")], source="shaft.toml")
     assert str(e.value) == "shaft.toml: sweep point 1 (tube.nodes = 2): tube.nodes: must be >= 3, got 2"
+
+
+def test_point_numbers_are_places_in_the_product_unless_taken():
+    idents = [("0",), ("1",), ("2",), ("3",)]
+    assert point_numbers(idents, {}) == {("0",): 0, ("1",): 1, ("2",): 2, ("3",): 3}
+    # an interrupted sweep that finished points 0 and 2 (out of order): the others keep their places
+    assert point_numbers(idents, {("0",): "0", ("2",): "2"}) == {("1",): 1, ("3",): 3}
+    # an extended sweep (a value inserted before the finished ones): numbers no kept row uses
+    assert point_numbers([("-1",), ("0",), ("1",)], {("0",): "0", ("1",): "1"}) == {("-1",): 2}
 
 
 def test_an_invalid_point_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch):

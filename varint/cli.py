@@ -228,10 +228,17 @@ def cmd_shock(args):
 
 def cmd_sweep(args):
     """``varint sweep SCENE --vary KEY=... --analysis run|modes --out DIR``: docs/output.md, "Sweeps"."""
-    from .sweep import sweep
+    from .sweep import finished_points, sweep
 
-    r = sweep(args.scene, args.vary, args.analysis, args.out, scheduler=args.scheduler, workers=args.workers,
-              count=args.count, about=args.about)
+    try:
+        r = sweep(args.scene, args.vary, args.analysis, args.out, scheduler=args.scheduler, workers=args.workers,
+                  count=args.count, about=args.about)
+    except KeyboardInterrupt:
+        k = finished_points(args.out)
+        if k:
+            raise _Interrupted(f"interrupted; {os.path.join(args.out, 'sweep.csv')} holds {k} finished point{'s' if k > 1 else ''} "
+                               "(the same command continues the sweep: finished points are skipped)") from None
+        raise
     parts = [f"{r['ok']} ok", f"{r['failed']} failed"] + ([f"{r['crashed']} crashed (retried by a re-run)"] if r["crashed"] else [])
     print(f"wrote {r['table']}: {r['points']} points ({r['computed']} computed, {r['skipped']} already done): "
           + ", ".join(parts))

@@ -28,7 +28,7 @@ import numpy as np
 
 from .errors import OutputError, SceneError, VarintError
 
-__all__ = ["Vary", "parse_vary", "resolve_key", "set_key", "to_toml", "point_texts", "sweep", "compute_point"]
+__all__ = ["Vary", "parse_vary", "resolve_key", "set_key", "to_toml", "point_texts", "sweep", "compute_point", "finished_points", "point_numbers"]
 
 ANALYSES = ("run", "modes")
 #: result columns of the modes analysis (docs/output.md)
@@ -323,6 +323,29 @@ def point_texts(text, varies, source=None):
     return out
 
 
+def point_numbers(idents, kept):
+    """The number (``point`` column, run file ``point_NNNN.h5``) of each point not in ``kept``.
+
+    ``idents``: the points' key values as the table writes them, in product order; ``kept``: the
+    finished rows' ``{ident: point number}``.  A point's number is its place in the product, unless a
+    kept row (of an earlier, different sweep in the directory) has it: then the next number no row
+    uses.  So an interrupted sweep, continued, numbers its points as it would have uninterrupted.
+    """
+    used = {int(n) for n in kept.values() if str(n).isdigit()}
+    spare = max(used, default=-1) + 1
+    out = {}
+    for i, ident in enumerate(idents):
+        if ident in kept:
+            continue
+        if i in used:
+            while spare in used:
+                spare += 1
+            i = spare
+        used.add(i)
+        out[ident] = i
+    return out
+
+
 def _copy(x):
     if isinstance(x, dict):
         return {k: _copy(v) for k, v in x.items()}
@@ -389,6 +412,15 @@ def _read_table(path):
         raise OutputError(f"{path}: cannot read the sweep table ({exc})") from None
 
 
+def finished_points(out_dir):
+    """How many points ``DIR/sweep.csv`` holds as finished (ok or failed); 0 when it cannot be read."""
+    try:
+        _, rows = _read_table(Path(out_dir) / "sweep.csv")
+    except VarintError:
+        return 0
+    return sum(r.get("status") in ("ok", "failed") for r in rows)
+
+
 def _write_table(path, columns, rows):
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", newline="", encoding="utf-8") as f:
@@ -437,8 +469,9 @@ def _client(scheduler, workers):
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise SweepError(f"--scheduler {scheduler}: cannot connect ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+    # no dashboard; its HTTP server (health checks) on a free port, never 8787 (another cluster's)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
-                           scheduler_kwargs={"dashboard": False})
+                           dashboard_address=":0", scheduler_kwargs={"dashboard": False})
     return Client(cluster), cluster
 
 
@@ -496,15 +529,10 @@ def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=Non
         ident = tuple(row.get(k, "") for k in keys)
         if row.get("status") in ("ok", "failed"):
             kept[ident] = row
-    todo = []
     rows = dict(kept)
-    next_number = 1 + max((int(r["point"]) for r in kept.values() if str(r.get("point", "")).isdigit()), default=-1)
-    for values, text in points:
-        ident = tuple(_fmt(x) for x in values)
-        if ident in kept:
-            continue
-        todo.append((next_number, ident, values, text))
-        next_number += 1
+    idents = [tuple(_fmt(x) for x in values) for values, _ in points]
+    numbers = point_numbers(idents, {k: r.get("point", "") for k, r in kept.items()})
+    todo = [(numbers[ident], ident, values, text) for ident, (values, text) in zip(idents, points) if ident not in kept]
     out.mkdir(exist_ok=True)
     meta_path.write_text(json.dumps(meta, indent=1), encoding="utf-8")
     result = {"table": str(table), "points": len(points), "skipped": len(points) - len(todo), "computed": len(todo)}
