@@ -98,3 +98,25 @@ def test_tip_torque_work_is_second_order_in_the_rotation():
         work = f.work(1e-3, Lam, Lam1, xi)
         exact = 2.0 * theta
         assert abs(work / exact - 1 - theta ** 2 / 12) < theta ** 4 / 20
+
+
+def test_check_lists_the_forces_and_the_derived_invariants(tmp_path, capsys):
+    from varint.cli import main
+
+    from helpers import to_toml
+
+    scene = {"title": "torqued free rod", "tube": {"length": 1.0, "nodes": 5, "radius": 0.01},
+             "rod": {"mass_per_length": 0.3, "rotary_inertia": 1e-3, "bending_stiffness": 2.0, "torsional_stiffness": 15.0,
+                     "axial_stiffness": 1e5, "shear_stiffness": 8e3, "ends": {"s0": "free", "sL": "free"},
+                     "load": {"torque": [0.0, 0.0, 0.1]}},
+             "time": {"step": 1e-3, "end": 1e-2}}
+    f = tmp_path / "torque.toml"
+    f.write_text(to_toml(scene))
+    assert main(["check", str(f)]) == 0
+    out = capsys.readouterr().out
+    assert "non-conservative forces (Lagrange-d'Alembert): tip_torque" in out
+    assert "expected invariants: linear_momentum" in out
+    scene["rod"]["ends"] = {"s0": "clamped", "sL": "free"}
+    f.write_text(to_toml(scene))
+    assert main(["check", str(f)]) == 0
+    assert "expected invariants: none" in capsys.readouterr().out

@@ -92,9 +92,11 @@ def cmd_check(args):
     print(f"scene: {args.scene}\n  title: {scene.title}")
     print(f"  effects: {', '.join(d['effects'])}")
     print(f"  terms of the discrete Lagrangian: {', '.join(d['terms'])}")
+    if d.get("forces"):
+        print(f"  non-conservative forces (Lagrange-d'Alembert): {', '.join(d['forces'])}")
     print("  unknowns: " + ", ".join(f"{k} ({v})" for k, v in d["unknowns"].items())
           + f"; total {d['unknowns_total']} ({d['inertial_unknowns']} inertial, {d['algebraic_unknowns']} algebraic)")
-    print(f"  expected invariants: {', '.join(d['invariants'])}")
+    print(f"  expected invariants: {', '.join(d['invariants']) or 'none (every symmetry is broken by a force, a load or a support)'}")
     lat = d["lattice"]
     if "rod" in d:
         print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m")
