@@ -160,7 +160,8 @@ def parse_vary(spec):
         values = [float(x) for x in np.linspace(start, stop, num)]
         if num == 1:
             values = [start]
-        if decl.kind == "int":
+        if decl.kind == "int":  # linspace's round-off (30.000000000000004) is not a fraction
+            values = [float(round(x)) if abs(x - round(x)) <= 1e-9 * max(1.0, abs(x)) else x for x in values]
             bad = [x for x in values if not float(x).is_integer()]
             if bad:
                 raise SweepError(f"--vary {key}: is a whole number, but {rhs} gives {_fmt(bad[0])}")
