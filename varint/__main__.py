@@ -2,4 +2,7 @@ import sys
 
 from .cli import main
 
-sys.exit(main())
+# the guard keeps worker processes that re-import the main module (multiprocessing's spawn, used by
+# Dask's local cluster in `varint sweep`) from running the command line again
+if __name__ == "__main__":
+    sys.exit(main())
