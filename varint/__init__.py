@@ -11,7 +11,7 @@ Public API::
 The discrete Lagrangian and its stationarity conditions are in docs/theory.md.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"
 
 from .errors import OutputError, SceneError, SolverError, VarintError  # noqa: E402
 from .model import Model, build_model  # noqa: E402
