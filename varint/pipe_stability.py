@@ -499,7 +499,7 @@ def critical_flow_velocity(beta, ends, gamma=0.0, method="galerkin", n_modes=40,
         if u_fl is not None and (u_div is None or u_fl < u_div):
             om = _galerkin_eigs(lam, B, C, D, u_fl, beta, gamma)
             osc = om[np.abs(om.real) > 1e-6 * np.maximum(1.0, np.abs(om))]
-            j = np.argmin(np.abs(osc.imag) / np.maximum(1.0, np.abs(osc)))
+            j = np.argmin(osc.imag / np.maximum(1.0, np.abs(osc)))   # the one that crossed
             return u_fl, float(osc[j].real), "flutter"
         if u_div is not None:
             return u_div, 0.0, "divergence"
