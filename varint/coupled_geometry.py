@@ -251,6 +251,18 @@ def _locate_el(x, ds, nR, periodic):
 
 
 @njit(cache=True)
+def _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl):
+    """Load element e's nodal radii and stretches into Rl, gl; return the local interval [lo, hi] of
+    the parcel (e0, t0)-(e1, t1) on it."""
+    nR = R.shape[0]
+    for i in range(2):
+        node = (e + i) % nR if periodic else e + i
+        Rl[i] = R[node]
+        gl[i] = gamma[node]
+    return (t0 if e == e0 else 0.0), (t1 if e == e1 else 1.0)
+
+
+@njit(cache=True)
 def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
     nR = R.shape[0]
     Rl = np.empty(2)
@@ -260,12 +272,7 @@ def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
         e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
         v = 0.0
         for e in range(e0, e1 + 1):
-            for i in range(2):
-                node = (e + i) % nR if periodic else e + i
-                Rl[i] = R[node]
-                gl[i] = gamma[node]
-            hi = t1 if e == e1 else 1.0
-            lo = t0 if e == e0 else 0.0
+            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
             v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
         V[k] = v
 
@@ -343,12 +350,7 @@ def _k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad,
         v = 0.0
         for e in range(e0, e1 + 1):
             slot = e - e0
-            for i in range(2):
-                node = (e + i) % nR if periodic else e + i
-                Rl[i] = R[node]
-                gl[i] = gamma[node]
-            hi = t1 if e == e1 else 1.0
-            lo = t0 if e == e0 else 0.0
+            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
             v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
             _add_element(Rl, gl, hi, 1.0, ds, slot, n_nodes, g, H)
             _add_element(Rl, gl, lo, -1.0, ds, slot, n_nodes, g, H)
