@@ -218,6 +218,21 @@ def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
 
 #: above this many unknowns rod_modes uses the sparse shift-invert solvers (dense eig is O(n^3))
 DENSE_MODES_LIMIT = 1500
+#: ... and above this bound on eps x (Gershgorin bound of the largest w^2 / the bending scale
+#: EI / (rho A L^4)): a dense solver's round-off is relative to the largest w^2 and reaches the lowest
+#: frequencies of a slender rod.  Measured: a solid cantilever of L/r = 10^4 at 100 elements (bound
+#: 6.3e3) read its first two bending w 1e-2 and 4e-3 off with the dense solver (~1e-6 x the bound), 2.5e-5 (the lattice
+#: error) with the sparse one; at the limit 1 (L/r ~ 1100) the dense error is ~1e-6.  The examples and
+#: the PyElastica section (L/r = 100, bound 6e-5) stay dense.
+DENSE_SPREAD_LIMIT = 1.0
+
+
+def _spectral_spread(model, K, M):
+    """eps times a Gershgorin bound on the largest w^2 over the bending scale EI / (rho A L^4)."""
+    sec = model.section
+    bending = sec.EI / (sec.rhoA * model.L ** 4)
+    top = float(np.max(np.abs(K).sum(axis=1).A.ravel() / M))
+    return np.finfo(float).eps * top / bending
 
 
 def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, method="auto"):
@@ -229,7 +244,8 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     spinning with it: the gyroscopic matrix G = C - C^T and the centrifugal stiffness -H of
     :func:`rotating_frame_kinetics` enter, and the state must be a relative equilibrium there.
     ``method``: "dense" (every mode), "sparse" (the lowest ``count``, shift-invert) or "auto"
-    (sparse above :data:`DENSE_MODES_LIMIT` unknowns).
+    (sparse above :data:`DENSE_MODES_LIMIT` unknowns, or for a rod so slender that the dense solver's
+    round-off would reach the lowest frequencies: :data:`DENSE_SPREAD_LIMIT`).
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
     from .analysis import gyroscopic_modes_of, modes_of, sparse_gyroscopic_modes_of, sparse_modes_of
@@ -245,10 +261,13 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
                           "rod.initial.velocity must be zero")
     if np.any(Omega):
         check_rotating_base(model, Omega)
-    sparse = method == "sparse" or (method == "auto" and model.nz > DENSE_MODES_LIMIT)
     K = -_force_jacobian(model, Lam, r)
     K = (0.5 * (K + K.T)).tocsc()
     M = lumped_mass(model)[mask]
+    # (the spread rule is for the symmetric problem only: the gyroscopic sparse path orders the modes
+    # of a spinning rod's rigid and near-rigid motions differently, and is not chosen by it)
+    sparse = method == "sparse" or (method == "auto" and (
+        model.nz > DENSE_MODES_LIMIT or (not np.any(Omega) and _spectral_spread(model, K, M) > DENSE_SPREAD_LIMIT)))
     if not np.any(Omega):
         return sparse_modes_of(K, M, count, vectors) if sparse else modes_of(K.toarray(), M, count, vectors)
     b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
