@@ -179,3 +179,16 @@ def test_auto_modes_of_a_slender_cantilever_use_the_accurate_solver():
     f = np.array([m["frequency"] for m in rod_modes(model, count=4)])[::2]
     eb = euler_bernoulli_cantilever(sec["bending_stiffness"], sec["mass_per_length"], 1.0, 2)
     assert np.all(np.abs(f / eb - 1) < 5e-5), f / eb - 1
+
+
+def test_gradients_return_the_level_they_skip_as_zeros():
+    model = build_model(rod_scene(nodes=5, initial={"curvature": [0.3, -0.5, 0.2], "angular_velocity": [1.0, 2.0, -0.5]}))
+    rng = np.random.default_rng(5)
+    xi = 0.01 * rng.standard_normal((model.N + 1, 3))
+    r1 = model.r0 + 1e-3 * rng.standard_normal(model.r0.shape)
+    D1, D2, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1, levels=(0, 1))
+    assert np.all(D2 == 0.0) and np.any(D1 != 0.0)
+    D1b, D2b, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1, levels=(1, 2))
+    assert np.all(D1b == 0.0) and np.any(D2b != 0.0)
+    full1, full2, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1)
+    assert np.array_equal(full1, D1) and np.array_equal(full2, D2b)

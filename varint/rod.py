@@ -333,6 +333,11 @@ class RodModel:
             D1[:] = np.nan
             D2[:] = np.nan
             L = np.nan
+        # the kernel leaves a level it does not compute unwritten (scratch): return it as zeros, as documented
+        if levels[0] > 0:
+            D1[:] = 0.0
+        if levels[1] < 2:
+            D2[:] = 0.0
         return D1, D2, L
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):

@@ -231,7 +231,7 @@ def _spectral_spread(model, K, M):
     """eps times a Gershgorin bound on the largest w^2 over the bending scale EI / (rho A L^4)."""
     sec = model.section
     bending = sec.EI / (sec.rhoA * model.L ** 4)
-    top = float(np.max(np.abs(K).sum(axis=1).A.ravel() / M))
+    top = float(np.max(np.asarray(abs(K).sum(axis=1)).ravel() / M))
     return np.finfo(float).eps * top / bending
 
 
@@ -267,7 +267,9 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     # (the spread rule is for the symmetric problem only: the gyroscopic sparse path orders the modes
     # of a spinning rod's rigid and near-rigid motions differently, and is not chosen by it)
     sparse = method == "sparse" or (method == "auto" and (
-        model.nz > DENSE_MODES_LIMIT or (not np.any(Omega) and _spectral_spread(model, K, M) > DENSE_SPREAD_LIMIT)))
+        model.nz > DENSE_MODES_LIMIT
+        # (and only where the sparse solver can return every mode asked for: it gives at most nz - 2)
+        or (not np.any(Omega) and model.nz > count + 2 and _spectral_spread(model, K, M) > DENSE_SPREAD_LIMIT)))
     if not np.any(Omega):
         return sparse_modes_of(K, M, count, vectors) if sparse else modes_of(K.toarray(), M, count, vectors)
     b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
