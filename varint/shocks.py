@@ -699,6 +699,17 @@ def _solve(tb, c):
 _RANGE_CACHE = {}
 
 
+def _edge(exists, good, bad, iterations=40):
+    """Bisect between a speed with a solution (``good``) and one without (``bad``); the last good one."""
+    for _ in range(iterations):
+        mid = 0.5 * (good + bad)
+        if exists(mid):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
 def speed_range_of(tb):
     """(c_min, c_max) of the traveling shock in this tube: c_min the sound speed ahead (weak shocks),
     c_max the largest speed with a solution (below c* = sqrt(beta1/a)), located by bisection to 1e-9."""
@@ -730,25 +741,10 @@ def speed_range_of(tb):
             k1 = k0
             while k1 + 1 < len(grid) and have[k1 + 1]:
                 k1 += 1
-            a, b = grid[k1], (grid[k1 + 1] if k1 + 1 < len(grid) else top)
-            if k1 + 1 < len(grid):
-                for _ in range(40):
-                    mid = 0.5 * (a + b)
-                    if exists(mid):
-                        a = mid
-                    else:
-                        b = mid
-            low = cs
-            if k0 > 0:  # solutions start above the sound speed: bisect the lower end too
-                x, y = grid[k0 - 1], lo_ok
-                for _ in range(40):
-                    mid = 0.5 * (x + y)
-                    if exists(mid):
-                        y = mid
-                    else:
-                        x = mid
-                low = y
-            out = (low, a)
+            high = _edge(exists, grid[k1], grid[k1 + 1]) if k1 + 1 < len(grid) else grid[k1]
+            # solutions starting above the sound speed: bisect the lower end too
+            low = _edge(exists, lo_ok, grid[k0 - 1]) if k0 > 0 else cs
+            out = (low, high)
     _RANGE_CACHE[tb] = out
     return out
 
