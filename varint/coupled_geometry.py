@@ -37,7 +37,7 @@ from .geometry import label_problem
 
 EPS = np.finfo(float).eps
 
-__all__ = ["centreline_weights", "centreline", "stretched_volumes", "stretched_volume_derivatives",
+__all__ = ["centreline_weights", "centreline", "centreline_and_weights", "stretched_volumes", "stretched_volume_derivatives",
            "nodal_stretch"]
 
 
@@ -77,6 +77,11 @@ def centreline(s, r, ds, periodic=False, period=None):
 
     ``period``: the shift vector d with r_{j+N} = r_j + d for a periodic tube (default L e_1).
     """
+    return centreline_and_weights(s, r, ds, periodic, period)[3:]
+
+
+def centreline_and_weights(s, r, ds, periodic=False, period=None):
+    """``(nodes, N, dN, X, X', X'')``: :func:`centreline_weights` and the centreline they give."""
     r = np.asarray(r, dtype=np.float64)
     nodes, N, dN, d2N = centreline_weights(s, len(r), ds, periodic)
     pts = r[nodes]
@@ -85,8 +90,8 @@ def centreline(s, r, ds, periodic=False, period=None):
         e = np.floor(np.asarray(s) / ds).astype(np.int64)
         unwrapped = e[:, None] + np.arange(-1, 3)[None, :]
         pts = pts + np.floor_divide(unwrapped, len(r))[:, :, None] * d
-    X = np.einsum("ki,kid->kd", N, pts)
-    return X, np.einsum("ki,kid->kd", dN, pts), np.einsum("ki,kid->kd", d2N, pts)
+    return (nodes, N, dN, np.einsum("ki,kid->kd", N, pts), np.einsum("ki,kid->kd", dN, pts),
+            np.einsum("ki,kid->kd", d2N, pts))
 
 
 @njit(cache=True)

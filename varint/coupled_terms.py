@@ -21,25 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .coupled_geometry import centreline_weights
+from .coupled_geometry import centreline_and_weights
 
 __all__ = ["fluid_kinetic_step", "LOCAL_SIZE"]
 
 #: local unknowns of one label's kinetic contribution: s^n, r^n (4 nodes x 3), s^{n+1}, r^{n+1} (4 x 3)
 LOCAL_SIZE = 26
-
-
-def _level(s, r, ds, periodic, period):
-    nodes, N, dN, d2N = centreline_weights(s, len(r), ds, periodic)
-    pts = r[nodes]
-    if periodic:
-        e = np.floor(np.asarray(s) / ds).astype(np.int64)
-        wraps = np.floor_divide(e[:, None] + np.arange(-1, 3)[None, :], len(r))
-        pts = pts + wraps[:, :, None] * period
-    X = np.einsum("ki,kid->kd", N, pts)
-    dX = np.einsum("ki,kid->kd", dN, pts)
-    d2X = np.einsum("ki,kid->kd", d2N, pts)
-    return nodes, N, dN, X, dX, d2X
 
 
 def fluid_kinetic_step(s0, r0, s1, r1, mbar, h, ds, periodic=False, period=None):
@@ -69,10 +56,8 @@ def fluid_kinetic_step(s0, r0, s1, r1, mbar, h, ds, periodic=False, period=None)
     r1 = np.asarray(r1, dtype=np.float64)
     mbar = np.asarray(mbar, dtype=np.float64)
     n_nodes, n_lab = len(r0), len(s0)
-    if periodic:
-        period = np.array([n_nodes * ds, 0.0, 0.0]) if period is None else np.asarray(period, dtype=np.float64)
-    nodes0, N0, dN0, X0, dX0, d2X0 = _level(s0, r0, ds, periodic, period)
-    nodes1, N1, dN1, X1, dX1, d2X1 = _level(s1, r1, ds, periodic, period)
+    nodes0, N0, dN0, X0, dX0, d2X0 = centreline_and_weights(s0, r0, ds, periodic, period)
+    nodes1, N1, dN1, X1, dX1, d2X1 = centreline_and_weights(s1, r1, ds, periodic, period)
     D = X1 - X0
     c = mbar / h
     L = float(0.5 * np.sum(c * np.sum(D * D, axis=1)))
