@@ -976,6 +976,14 @@ def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r
 
 
 @njit(cache=True)
+def _element_scratch():
+    """Complex work arrays of one :func:`_k_element` call: (M, V, D1, D2, Lambda_a, Lambda_b)."""
+    c = np.complex128
+    return (np.empty((5, 3, 3), c), np.empty((16, 3), c), np.empty(12, c), np.empty(12, c),
+            np.empty((3, 3), c), np.empty((3, 3), c))
+
+
+@njit(cache=True)
 def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
     """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
 
@@ -985,12 +993,7 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
     """
     N = Lam_n.shape[0] - 1
     c = np.complex128
-    M = np.empty((5, 3, 3), c)
-    V = np.empty((16, 3), c)
-    e1 = np.empty(12, c)
-    e2 = np.empty(12, c)
-    La = np.empty((3, 3), c)
-    Lb = np.empty((3, 3), c)
+    M, V, e1, e2, La, Lb = _element_scratch()
     ra = np.empty(3, c)
     rb = np.empty(3, c)
     xa = np.empty(3, c)
@@ -1044,16 +1047,13 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
     By complex step of the analytic gradient: exact to round-off.  Columns off the ``mask`` are left zero."""
     N = Lam.shape[0] - 1
     c = np.complex128
-    M = np.empty((5, 3, 3), c)
-    V = np.empty((16, 3), c)
-    e1 = np.empty(12, c)
-    e2 = np.empty(12, c)
-    La = np.empty((3, 3), c)
-    Lb = np.empty((3, 3), c)
+    M, V, e1, e2, La, Lb = _element_scratch()
     C = np.empty((3, 3), c)
     ra = np.empty(3, c)
     rb = np.empty(3, c)
     zero = np.zeros(3, c)
+    w = np.zeros(3, c)
+    Lc = np.empty((3, 3), c)  # the node's frame, complex, for the sigma columns
     inv = 1.0 / eps
     for e in range(N):
         for k in range(12):
@@ -1070,18 +1070,17 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
             d = k % 3
             if k < 3:
                 ra[d] += 1j * eps
-            elif k < 6:
-                w = np.zeros(3, c)
-                w[d] = 1j * eps
-                _k_cay(w[0], w[1], w[2], C)
-                _k_mm(Lam[e].astype(c), C, La)
-            elif k < 9:
+            elif 6 <= k < 9:
                 rb[d] += 1j * eps
-            else:
-                w = np.zeros(3, c)
+            else:  # sigma of node a (k < 6) or b: Lambda -> Lambda cay(i eps e_d)
+                w[:] = 0.0
                 w[d] = 1j * eps
                 _k_cay(w[0], w[1], w[2], C)
-                _k_mm(Lam[e + 1].astype(c), C, Lb)
+                node = e if k < 6 else e + 1
+                for i in range(3):
+                    for m in range(3):
+                        Lc[i, m] = Lam[node, i, m]
+                _k_mm(Lc, C, La if k < 6 else Lb)
             _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
