@@ -26,6 +26,7 @@ import scipy.sparse as sp
 
 from . import terms as T
 from .errors import SceneError
+from .forces import Declaration, derive_invariants
 from .geometry import label_problem, parcel_volumes, radius_at
 from .initial import initial_fields, shape_profile
 from .thermo import make_eos
@@ -240,15 +241,15 @@ class Model:
 
     def invariants(self):
         """Invariants this model keeps, from the terms' declarations and the boundaries."""
-        inv = ["energy"]
+        base = ["energy"]
         if self.has_fluid:
-            inv += ["mass", "parcel_entropy"] if self.eos is not None and self.eos.has_entropy else ["mass"]
-            broken = set().union(*(t.breaks for t in self.terms))
-            if self.periodic and "axial_momentum" not in broken:
-                inv.append("axial_momentum")
+            base += ["mass", "parcel_entropy"] if self.eos is not None and self.eos.has_entropy else ["mass"]
+            if self.periodic:  # closed ends hold the fluid: only a periodic tube can keep its axial momentum
+                base.append("axial_momentum")
         if self.incompressible:
-            inv.append("parcel_volume")
-        return inv
+            base.append("parcel_volume")
+        # the same rule as the rod's (varint.forces): a term's `breaks` removes what it names
+        return derive_invariants([Declaration(t.name, {b: None for b in t.breaks}) for t in self.terms], base=base)
 
     # -- configuration and potential ----------------------------------------
 
