@@ -188,7 +188,8 @@ def _case(kind, periodic=False, n_el=7, M=9, L=1.2, seed=3):
     if kind == "gas":
         fp = FluidPotential(eos=IdealGas(1.4, 287.0), S=rng.uniform(-50, 50, M), p_ext=0.4, g=GRAV, **common)
     elif kind == "barotropic":
-        fp = FluidPotential(eos=Tait(1.0, 1.0, 20.0, 7.0), p_ext=0.4, g=GRAV, **common)
+        rho0 = float(np.mean(m / stretched_volumes(s0, R0, np.ones(nR), ds, periodic)))
+        fp = FluidPotential(eos=Tait(rho0, 1.0, 20.0, 7.0), p_ext=0.4, g=GRAV, **common)
     else:
         V0 = stretched_volumes(s0, R0, np.ones(nR), ds, periodic) * (1 + 0.05 * rng.normal(size=M))
         mu = rng.uniform(0.5, 1.5, M) if kind == "liquid" else np.zeros(M)
@@ -280,3 +281,235 @@ def test_potential_gradients_equal_central_differences(kind, periodic):
                 _close(a, b, 1e-7, f"level {level} {name}")
         if mu is not None:
             _close(out.Dmu, mu, 1e-7, "mu")
+
+
+def _chart_state(st, u, n_nodes, n_lab, nR, n_mu):
+    """The state with level n+1 given by the step unknowns u in the Newton ordering:
+    r^{n+1} = r^n + Lambda^n b, Lambda^{n+1} = Lambda^n cay(xi), s^{n+1}, R^{n+1}, mu."""
+    off, _ = newton_offsets(n_nodes, n_lab, nR, n_mu)
+    rod = u[:6 * n_nodes].reshape(n_nodes, 6)
+    x = dict(st)
+    x["r1"] = st["r0"] + np.einsum("nij,nj->ni", st["Lam0"], rod[:, :3])
+    x["Lam1"] = st["Lam0"] @ cay(rod[:, 3:])
+    x["s1"] = u[off["s"]:off["R"]].copy()
+    x["R1"] = u[off["R"]:off["mu"]].copy()
+    x["mu"] = u[off["mu"]:].copy() if n_mu else None
+    return x
+
+
+def _chart_unknowns(st, n_nodes, n_mu):
+    rod = np.zeros((n_nodes, 6))
+    rod[:, :3] = np.einsum("nji,nj->ni", st["Lam0"], st["r1"] - st["r0"])
+    rod[:, 3:] = cay_inv(np.einsum("nji,njk->nik", st["Lam0"], st["Lam1"]))
+    return np.concatenate([rod.ravel(), st["s1"], st["R1"], st["mu"] if n_mu else []])
+
+
+def _residual_rows(out, Lam0, n_mu):
+    """[rod (translations rotated to the level-n body frame) | s | R | mu] of D1 and D_mu."""
+    rod = out.D1.rod.copy()
+    rod[:, :3] = np.einsum("nji,nj->ni", Lam0, rod[:, :3])
+    return np.concatenate([rod.ravel(), out.D1.s, out.D1.R, out.Dmu if n_mu else []])
+
+
+def _dense_coo(block, n):
+    J = np.zeros((n, n))
+    np.add.at(J, (block[0], block[1]), block[2])
+    return J
+
+
+def _jacobian_fd(F, u, skip, eps):
+    """Fourth-order central differences of F in every unknown not in ``skip`` (columns left zero there)."""
+    cols = []
+    for i in range(len(u)):
+        if i in skip:
+            cols.append(np.zeros_like(F(u)))
+            continue
+        f = []
+        for k in (-2, -1, 1, 2):
+            x = u.copy()
+            x[i] += k * eps[i]
+            f.append(F(x))
+        cols.append((8 * (f[2] - f[1]) - (f[3] - f[0])) / (12 * eps[i]))
+    return np.stack(cols, axis=1)
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+@pytest.mark.parametrize("kind", KINDS)
+def test_potential_newton_block_equals_differences_of_the_residual(kind, periodic):
+    fp, st = _case(kind, periodic)
+    n_nodes, n_lab, nR = len(st["r0"]), len(st["s0"]), len(st["R0"])
+    n_mu = 0 if st["mu"] is None else len(st["mu"])
+    off, n = newton_offsets(n_nodes, n_lab, nR, n_mu)
+    u = _chart_unknowns(st, n_nodes, n_mu)
+    out = fluid_potential_step(fp, HP, **st, newton=True)
+    J = _dense_coo(out.newton, n)
+
+    def F(x):
+        return _residual_rows(fluid_potential_step(fp, HP, **_chart_state(st, x, n_nodes, n_lab, nR, n_mu)),
+                              st["Lam0"], n_mu)
+
+    assert np.allclose(F(u), _residual_rows(out, st["Lam0"], n_mu), rtol=1e-13, atol=1e-18)
+    # labels: small steps (C^1 only across nodes); the rest is smooth; a closed tube's end labels stay
+    eps = np.full(n, 1e-4)
+    eps[off["s"]:off["R"]] = 1e-6
+    eps[off["mu"]:] = 1e-2
+    skip = set() if periodic else {off["s"], off["R"] - 1}
+    J_fd = _jacobian_fd(F, u, skip, eps)
+    keep = np.ones(n, bool)
+    keep[list(skip)] = False
+    J, J_fd = J[keep][:, keep], J_fd[keep][:, keep]
+    # block by block, each on its own scale: [rod | s | R | mu] rows x columns
+    edges = [0, off["s"], off["R"], off["mu"], n]
+    edges = [e - sum(1 for i in skip if i < e) for e in edges]
+    names = ["rod", "s", "R", "mu"]
+    seen = 0
+    for a in range(4):
+        for b in range(4):
+            blk, ref = J[edges[a]:edges[a + 1], edges[b]:edges[b + 1]], J_fd[edges[a]:edges[a + 1], edges[b]:edges[b + 1]]
+            if ref.size == 0:
+                continue
+            scale = np.max(np.abs(ref))
+            if scale < 1e-9 * np.max(np.abs(J_fd)):
+                assert np.max(np.abs(blk)) <= 1e-9 * np.max(np.abs(J_fd)), f"{names[a]} x {names[b]}"
+                continue
+            seen += 1
+            err = np.max(np.abs(blk - ref))
+            assert err <= 1e-7 * scale, f"{names[a]} x {names[b]}: {err:.3g} vs {scale:.3g}"
+    assert seen >= 3
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+def test_kinetic_chart_gradients_and_newton_block(periodic):
+    fp, st = _case("gas", periodic)
+    n_nodes, n_lab = len(st["r0"]), len(st["s0"])
+    args = dict(mbar=fp.mbar, h=HP, ds=fp.ds, periodic=periodic)
+
+    def Lval(x):
+        return fluid_kinetic_step(x["s0"], x["r0"], x["s1"], x["r1"], **args)[0]
+
+    out = fluid_kinetic_chart(st["s0"], st["r0"], st["Lam0"], st["s1"], st["r1"], newton=True, **args)
+    assert out.L == pytest.approx(Lval(st), rel=1e-15)
+    varied = range(n_lab) if periodic else range(1, n_lab - 1)
+    for level, D in ((0, out.D1), (1, out.D2)):
+        assert np.all(D.rod[:, 3:] == 0.0)  # positions only: no frame forces
+        eps = 1e-6
+        fd = np.zeros((n_nodes, 3))
+        for j in range(n_nodes):
+            for d in range(3):
+                fd[j, d] = (Lval(_vary(st, level, "r", j, d, eps)) - Lval(_vary(st, level, "r", j, d, -eps))) / (2 * eps)
+        _close(D.rod[:, :3], fd, 1e-7, f"level {level} dr")
+        fs = np.array([(Lval(_vary(st, level, "s", k, 0, eps)) - Lval(_vary(st, level, "s", k, 0, -eps))) / (2 * eps)
+                       for k in varied])
+        _close(D.s[list(varied)], fs, 1e-7, f"level {level} s")
+
+    off, n = newton_offsets(n_nodes, n_lab, 0, 0)
+    u = _chart_unknowns(st, n_nodes, 0)[:n]
+
+    def F(x):
+        y = _chart_state(st, np.concatenate([x, []]), n_nodes, n_lab, 0, 0)
+        o = fluid_kinetic_chart(y["s0"], y["r0"], y["Lam0"], y["s1"], y["r1"], **args)
+        return _residual_rows(o, st["Lam0"], 0)
+
+    skip = set() if periodic else {off["s"], n - 1}
+    eps = np.full(n, 1e-4)
+    eps[off["s"]:] = 1e-6
+    J = _dense_coo(out.newton, n)
+    J_fd = _jacobian_fd(F, u, skip, eps)
+    keep = [i for i in range(n) if i not in skip]
+    _close(J[np.ix_(keep, keep)], J_fd[np.ix_(keep, keep)], 1e-8, "kinetic Newton block")
+    assert not np.any(J[:, :off["s"]].reshape(n, n_nodes, 6)[:, :, 3:])  # no xi columns
+
+
+def _rigid(st, Q, c):
+    x = dict(st)
+    for lev in "01":
+        x["r" + lev] = st["r" + lev] @ Q.T + c
+        x["Lam" + lev] = Q[None] @ st["Lam" + lev]
+    return x
+
+
+@pytest.mark.parametrize("kind", ["gas", "barotropic", "liquid"])
+def test_potential_is_invariant_under_rigid_motions(kind):
+    fp, st = _case(kind)
+    fp = FluidPotential(**{**fp.__dict__, "g": np.zeros(3)})
+    Q = cay(np.array([0.7, -1.1, 0.4]))
+    L = fluid_potential_step(fp, HP, **st).L
+    moved = fluid_potential_step(fp, HP, **_rigid(st, Q, np.array([3.0, -1.0, 2.0]))).L
+    assert moved == pytest.approx(L, rel=1e-13)
+
+
+@pytest.mark.parametrize("kind", ["gas", "liquid"])
+def test_levelwise_noether_identities(kind):
+    """§10.6: every internal term is invariant under a rigid motion of one level alone, so the level's
+    forces add up to gravity's share (h/2) M_fluid g and their moment to (h/2) sum_k mbar_k X(sbar_k; r^l) x g."""
+    fp, st = _case(kind)
+    out = fluid_potential_step(fp, HP, **st)
+    sbar = 0.5 * (st["s0"] + st["s1"])
+    for lev, D in (("0", out.D1), ("1", out.D2)):
+        r, Lam = st["r" + lev], st["Lam" + lev]
+        force = D.rod[:, :3].sum(0)
+        scale = np.max(np.abs(D.rod))
+        assert np.max(np.abs(force - 0.5 * HP * fp.mbar.sum() * GRAV)) < 1e-14 * scale * len(r)
+        X = centreline(sbar, r, fp.ds)[0]
+        torque = np.cross(r, D.rod[:, :3]).sum(0) + np.einsum("nij,nj->i", Lam, D.rod[:, 3:])
+        expected = 0.5 * HP * np.cross(np.sum(fp.mbar[:, None] * X, axis=0), GRAV)
+        assert np.max(np.abs(torque - expected)) < 1e-14 * scale * len(r)
+
+
+# -- reduction to 0.1 on the fixed straight centreline (docs/theory.md §10.8)
+
+LIQUID = {"model": "incompressible", "density": 1000.0, "pressure": 1.0e5}
+
+
+@pytest.mark.parametrize("fluid,ends", [("gas", "closed"), ("gas", "periodic"), ("liquid", "closed")])
+def test_straight_fixed_centreline_reduces_to_the_tube_terms(fluid, ends):
+    from helpers import gas_scene, make
+    from varint.terms import Config
+
+    d = gas_scene(nodes=9, parcels=11, ends=ends, environment={"external_pressure": 9.0e4, "gravity": [7.5, 0.0, 0.0]})
+    if fluid == "liquid":
+        d["fluid"] = dict(LIQUID, parcels=11, ends={"s0": ends, "sL": ends})
+    scene, model = make(d)
+    model = getattr(model, "tube", None) or model  # the one model keeps the 0.1 tube as its tube part
+    rng = np.random.default_rng(5)
+    periodic, M, nR, ds, L = model.periodic, model.M, model.nR, model.ds, model.L
+    n_nodes = nR
+    straight = np.zeros((n_nodes, 3))
+    straight[:, 0] = np.arange(n_nodes) * ds
+    frames = np.broadcast_to(np.eye(3), (n_nodes, 3, 3)).copy()
+    s0 = np.linspace(0.0, L, M + 1)
+    s0[1:-1] += 0.3 * L / M * rng.uniform(-1, 1, M - 1)
+    s1 = s0.copy()
+    s1[1:-1] += 0.1 * L / M * rng.uniform(-1, 1, M - 1)
+    R0 = model.R0 * (1 + 0.05 * rng.uniform(-1, 1, nR))
+    R1 = R0 * (1 + 0.01 * rng.normal(size=nR))
+    mu = 1.0e5 * (1 + 0.1 * rng.normal(size=M)) if model.incompressible else None
+    mbar = 0.5 * (np.concatenate([model.m, [0.0]]) + np.concatenate([[0.0], model.m]))
+    if periodic:  # label M is label 0 shifted by L: its mass is counted once, at label 0
+        mbar[0], mbar[-1] = 0.5 * (model.m[0] + model.m[-1]), 0.0
+    fp = FluidPotential(ds=ds, m=model.m, mbar=mbar, eos=model.eos, S=model.S,
+                        V0=model.V0 if model.incompressible else None, p_ext=model.p_ext,
+                        g=np.array([model.gx, 0.0, 0.0]), periodic=periodic)
+    out = fluid_potential_step(fp, HP, s0, straight, frames, R0, s1, straight, frames, R1, mu)
+
+    # 0.1: the potential's gradient at the midpoint configuration, without the wall's own elastic term
+    cfg = Config(0.5 * (s0 + s1), 0.5 * (R0 + R1), mu)
+    grad = model.gradient(cfg)
+    U = model.potential(cfg)
+    wall = [t for t in model.terms if t.name == "wall_elastic"]
+    assert len(wall) == 1 and {t.name for t in model.terms} - {"wall_elastic"} == (
+        {"incompressibility", "external_pressure", "gravity"} if fluid == "liquid" else {"internal", "external_pressure", "gravity"})
+    gs, gR, gmu = np.zeros(M + 1), np.zeros(nR), np.zeros(M if mu is not None else 0)
+    wall[0].gradient(cfg, {}, gs, gR, gmu)
+    U -= wall[0].energy(cfg, {})
+    i = model.index
+    g_s, g_R = grad[:i["R"]], grad[i["R"]:i["R"] + nR] - gR
+    interior = slice(0, M) if periodic else slice(1, M)
+    for D in (out.D1, out.D2):
+        assert np.allclose(D.s[interior], -0.5 * HP * g_s[interior], rtol=1e-12, atol=1e-12 * np.max(np.abs(D.s)))
+        assert np.allclose(D.R, -0.5 * HP * g_R, rtol=1e-12, atol=1e-12 * np.max(np.abs(D.R)))
+    if mu is not None:
+        assert np.allclose(out.Dmu, -HP * grad[i["mu"]:], rtol=1e-10, atol=1e-12 * np.max(np.abs(out.Dmu)))
+    # values: 0.1 leaves the fixed end labels out of gravity (a constant); here they carry mbar_0, mbar_M
+    ends_term = 0.0 if periodic else model.gx * mbar[-1] * L
+    assert out.L == pytest.approx(-HP * (U - ends_term), rel=1e-12)

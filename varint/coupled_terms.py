@@ -177,7 +177,10 @@ class FluidPotential:
     ``eos`` is an equation of state in the form of varint/thermo.py (``psi(V, m, S)`` the parcel internal
     energy m e(m/V, S), ``dpsi(V, m, S)`` its first and second V-derivatives, -p and -dp/dV); ``eos=None``
     means incompressible, with reference volumes ``V0`` and multipliers mu.  ``mbar`` (M+1,) are the label
-    masses of §10.1 (ends included), ``g`` the gravity vector, ``period`` the shift d of a periodic tube.
+    masses of §10.1 (closed ends included: mbar_0 = m_0/2, mbar_M = m_{M-1}/2; periodic: label M is
+    label 0 shifted by the period, so mbar_0 = (m_{M-1} + m_0)/2 and mbar_M = 0 — counted once, as
+    varint/tube.py does), ``g`` the gravity vector, ``period`` the shift d of a periodic tube (default
+    L e_1).
     """
 
     ds: float
