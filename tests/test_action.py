@@ -82,23 +82,23 @@ def _model(wall, fluid, ends, scheme, gravity=G_X):
     _, model = make(_scene(wall, fluid, ends, scheme, gravity=gravity if fluid is not None else 0.0))
     if fluid is not None and gravity != 0.0:
         # the scene's gravity must reach the model as a force term (checked against its energy below)
-        assert "gravity" in [t.name for t in model.terms]
+        assert "gravity" in [t.name for t in model.tube.terms]
     return model
 
 
 def _scales(model):
     sc = np.ones(model.nz)
     for name, sl in model.layout.items():
-        sc[sl] = {"s": model.L / max(model.M, 1), "R": model.R0, "mu": 1e4}[name]
+        sc[sl] = {"s": model.L / max(model.tube.M, 1), "R": model.tube.R0, "mu": 1e4}[name]
     return sc
 
 
 def _config_blocks(model):
     """Configuration-space blocks (s, R, mu) that some unknown moves, with their scales."""
-    moved = np.asarray(abs(model.B).sum(axis=1)).ravel() > 0
-    i = model.index
-    ends = {"s": (0, i["R"]), "R": (i["R"], i["R"] + model.nR), "mu": (i["mu"], model.nconfig)}
-    scale = {"s": model.L / max(model.M, 1), "R": model.R0, "mu": 1e4}
+    moved = np.asarray(abs(model.tube.B).sum(axis=1)).ravel() > 0
+    i = model.tube.index
+    ends = {"s": (0, i["R"]), "R": (i["R"], i["R"] + model.tube.nR), "mu": (i["mu"], model.tube.nconfig)}
+    scale = {"s": model.L / max(model.tube.M, 1), "R": model.tube.R0, "mu": 1e4}
     out = {}
     for name, (a, b) in ends.items():
         idx = np.arange(a, b)[moved[a:b]]
@@ -108,17 +108,17 @@ def _config_blocks(model):
 
 
 def _term_gradient(term, cfg, model):
-    gs = np.zeros(model.index["R"])
-    gR = np.zeros(model.nR)
-    gmu = np.zeros(model.M if model.incompressible else 0)
+    gs = np.zeros(model.tube.index["R"])
+    gR = np.zeros(model.tube.nR)
+    gmu = np.zeros(model.tube.M if model.tube.incompressible else 0)
     term.gradient(cfg, {}, gs, gR, gmu)
     return np.concatenate([gs, gR, gmu])
 
 
 def _with(cfg, model, c):
-    i = model.index
-    return type(cfg)(c[: i["R"]].copy(), c[i["R"]: i["R"] + model.nR].copy(),
-                     c[i["mu"]:].copy() if model.incompressible else None)
+    i = model.tube.index
+    return type(cfg)(c[: i["R"]].copy(), c[i["R"]: i["R"] + model.tube.nR].copy(),
+                     c[i["mu"]:].copy() if model.tube.incompressible else None)
 
 
 @pytest.mark.parametrize("wall,fluid,ends,scheme", list(_combos(schemes=("midpoint",))))
@@ -128,20 +128,20 @@ def test_each_term_force_is_the_gradient_of_its_own_energy(wall, fluid, ends, sc
     not against the pressure forces)."""
     model = _model(wall, fluid, ends, scheme)
     rng = np.random.default_rng(11)
-    z = np.concatenate([model.q_init, model.lam_init]) + 0.05 * _scales(model) * rng.standard_normal(model.nz)
-    cfg = model.config(z)
-    c0 = np.concatenate([cfg.s, cfg.R, cfg.mu if model.incompressible else np.empty(0)])
+    z = np.concatenate([model.tube.q_init, model.tube.lam_init]) + 0.05 * _scales(model) * rng.standard_normal(model.nz)
+    cfg = model.tube.config(z)
+    c0 = np.concatenate([cfg.s, cfg.R, cfg.mu if model.tube.incompressible else np.empty(0)])
     blocks = _config_blocks(model)
-    names = [t.name for t in model.terms]
+    names = [t.name for t in model.tube.terms]
     assert len(set(names)) == len(names)
-    for term in model.terms:
+    for term in model.tube.terms:
         g = _term_gradient(term, cfg, model)
-        r, c, v = term.hessian(cfg, {}, model.index)
-        H = np.zeros((model.nconfig, model.nconfig))
+        r, c, v = term.hessian(cfg, {}, model.tube.index)
+        H = np.zeros((model.tube.nconfig, model.tube.nconfig))
         np.add.at(H, (r, c), v)
         for bname, (idx, sc) in blocks.items():
             fd = np.empty(len(idx))
-            Hfd = np.empty((model.nconfig, len(idx)))
+            Hfd = np.empty((model.tube.nconfig, len(idx)))
             for j, i in enumerate(idx):
                 cp, cm = c0.copy(), c0.copy()
                 cp[i] += 1e-5 * sc
@@ -164,22 +164,22 @@ def test_each_term_force_is_the_gradient_of_its_own_energy(wall, fluid, ends, sc
                                                                        np.abs(Hb - Fb).max() / max(href, 1e-300))
     if fluid is not None:
         # gravity's force on each label is -m_k g_x: a constant, independent of the configuration
-        grav = next(t for t in model.terms if t.name == "gravity")
+        grav = next(t for t in model.tube.terms if t.name == "gravity")
         idx = blocks["s"][0]
-        assert np.allclose(_term_gradient(grav, cfg, model)[idx], -G_X * model.label_mass_config[idx], rtol=1e-15, atol=0)
+        assert np.allclose(_term_gradient(grav, cfg, model)[idx], -G_X * model.tube.label_mass_config[idx], rtol=1e-15, atol=0)
 
 
 @contextmanager
 def _part(model, S, terms, kinetic):
-    """The model and scheme reduced to one part of the action: the kinetic energy, or one term's potential."""
-    saved_terms, saved_mass = model.terms, S.Mdiag
-    model.terms = list(terms)
+    """The model and step reduced to one part of the action: the kinetic term, or one potential term."""
+    saved_terms, saved_step_terms = model.tube.terms, S.terms
+    model.tube.terms = list(terms)
     if not kinetic:
-        S.Mdiag = np.zeros_like(saved_mass)
+        S.terms = [t for t in S.terms if t.name != "tube_kinetic"]
     try:
         yield
     finally:
-        model.terms, S.Mdiag = saved_terms, saved_mass
+        model.tube.terms, S.terms = saved_terms, saved_step_terms
 
 
 @pytest.mark.parametrize("wall,fluid,ends,scheme", list(_combos()))
@@ -187,9 +187,9 @@ def test_residual_is_gradient_of_discrete_action(wall, fluid, ends, scheme):
     model = _model(wall, fluid, ends, scheme)
     S = make_scheme(model, 1e-4, scheme)
     rng = np.random.default_rng(42)
-    nq, nl = model.nq, model.nlam
+    nq, nl = model.tube.nq, model.tube.nlam
     scale = _scales(model)
-    z0 = np.concatenate([model.q_init, model.lam_init])
+    z0 = np.concatenate([model.tube.q_init, model.tube.lam_init])
     q = [z0[:nq] + 0.05 * scale[:nq] * rng.standard_normal(nq) for _ in range(3)]
     lam = [z0[nq:] + 0.05 * scale[nq:] * rng.standard_normal(nl) for _ in range(2)]
 
@@ -215,7 +215,7 @@ def test_residual_is_gradient_of_discrete_action(wall, fluid, ends, scheme):
         return fd
 
     r = residual()
-    parts = {"kinetic": ([], True)} | {t.name: ([t], False) for t in model.terms}
+    parts = {"kinetic": ([], True)} | {t.name: ([t], False) for t in model.tube.terms}
     r_parts, sizes = {}, {name: 0.0 for name in model.layout}
     for pname, (terms, kinetic) in parts.items():
         with _part(model, S, terms, kinetic):
@@ -234,7 +234,7 @@ def test_residual_is_gradient_of_discrete_action(wall, fluid, ends, scheme):
     if fluid is not None:
         # gravity's part of the residual is the impulse -h m_k g_x on each label, not lost under the pressure forces
         sl = model.layout["s"]
-        lab = model.mass[sl]
+        lab = model.tube.mass[sl]
         assert np.allclose(r_parts["gravity"][sl], S.h * G_X * lab, rtol=1e-12, atol=0)
 
 
@@ -244,10 +244,10 @@ def test_jacobian_is_derivative_of_residual(wall, fluid, ends, scheme):
     S = make_scheme(model, 1e-4, scheme)
     rng = np.random.default_rng(7)
     scale = _scales(model)
-    z0 = np.concatenate([model.q_init, model.lam_init])
-    qn = model.q_init + 0.05 * scale[:model.nq] * rng.standard_normal(model.nq)
+    z0 = np.concatenate([model.tube.q_init, model.tube.lam_init])
+    qn = model.tube.q_init + 0.05 * scale[:model.tube.nq] * rng.standard_normal(model.tube.nq)
     z = z0 + 0.05 * scale * rng.standard_normal(model.nz)
-    pn = rng.standard_normal(model.nq) * 1e-3
+    pn = rng.standard_normal(model.tube.nq) * 1e-3
     J = S.jacobian(qn, z).toarray()
     Jfd = np.empty_like(J)
     for i in range(model.nz):

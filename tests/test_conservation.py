@@ -94,7 +94,7 @@ def test_periodic_rigid_tube_conserves_momentum_to_roundoff():
     P0_ = sim.monitors()["linear_momentum"][0]
     # unknowns are displacements from the reference lattice, so the round-off left by each step
     # scales with the motion: measured 3e-14 of sum m|u| over 2000 steps (docs/validation.md)
-    scale = np.sum(model.mass * np.abs(model.v_init))
+    scale = np.sum(model.tube.mass * np.abs(model.tube.v_init))
     dev = 0.0
     for _ in range(2000):
         sim.step()
@@ -110,9 +110,9 @@ def _label_force_from_pressure_jumps(model, cfg):
     is pushed by parcel k-1 on its left and parcel k on its right: F_k = A (p_{k-1} - p_k).
     No geometry kernel and no term gradient is used.
     """
-    A = np.pi * model.R0 ** 2
-    rho = model.m / (A * np.diff(cfg.s))
-    p = model.eos.pressure(rho, model.S)
+    A = np.pi * model.tube.R0 ** 2
+    rho = model.tube.m / (A * np.diff(cfg.s))
+    p = model.tube.eos.pressure(rho, model.tube.S)
     return A * (np.roll(p, 1) - p)
 
 
@@ -129,23 +129,23 @@ def test_each_label_of_a_periodic_rigid_tube_feels_pressure_jump_times_area_and_
     _, model = make(d)
     sim = Simulation(model)
     h, sl = sim.h, model.layout["s"]
-    assert len(np.unique(model.m)) > 1  # parcels of different masses: the lumped label masses matter
-    m_lab = model.mass[sl]
+    assert len(np.unique(model.tube.m)) > 1  # parcels of different masses: the lumped label masses matter
+    m_lab = model.tube.mass[sl]
     P_start = sim.monitors()["linear_momentum"][0]
     worst, worst_total, biggest = 0.0, 0.0, 0.0
     for n in range(1, 201):
         q0, p0 = sim.state.q.copy(), sim.state.p.copy()
         sim.step()
-        cfg = model.config(0.5 * (q0 + sim.state.q))
+        cfg = model.tube.config(0.5 * (q0 + sim.state.q))
         expected = h * (_label_force_from_pressure_jumps(model, cfg) + m_lab * g)
         biggest = max(biggest, np.max(np.abs(expected)))
         worst = max(worst, np.max(np.abs(sim.state.p[sl] - p0 - expected)))
         total = sim.monitors()["linear_momentum"][0]
-        worst_total = max(worst_total, abs(total - (P_start + n * h * g * np.sum(model.m))))
+        worst_total = max(worst_total, abs(total - (P_start + n * h * g * np.sum(model.tube.m))))
     # measured 7.8e-13 of the largest label impulse; gravity's share of it is ~1e-4
     assert worst < 1e-10 * biggest, (worst, biggest)
     # gravity's impulse per step h g sum(m) is 1.9e-7 kg m/s; the total stays on it to 1e-15 (measured)
-    assert worst_total < 1e-6 * h * g * np.sum(model.m), worst_total
+    assert worst_total < 1e-6 * h * g * np.sum(model.tube.m), worst_total
 
 
 def test_incompressible_volumes_and_energy():

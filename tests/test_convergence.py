@@ -29,10 +29,10 @@ def _final_state(parcels, h, T, scheme="midpoint", wall=True):
 
 def _observables(model, sim, probes=(0.25, 0.5, 0.75)):
     """Positions of the labels that start at the probe points and radii at those nodes: present on every lattice."""
-    cfg = model.config(np.concatenate([sim.state.q, sim.state.lam]))
-    M, N = model.M, model.N
+    cfg = model.tube.config(np.concatenate([sim.state.q, sim.state.lam]))
+    M, N = model.tube.M, model.N
     out = [cfg.s[int(round(p * M))] for p in probes]
-    if model.has_wall:
+    if model.tube.has_wall:
         out += [cfg.R[int(round(p * N))] for p in probes]
     return np.array(out)
 

@@ -84,7 +84,7 @@ def _check(name, model, mons, fields):
     if name == "angular_momentum_about_the_bearing_axis":
         # the line through the two pinned end nodes; the angular momentum about a point p0 on it is
         # J_0 - p0 x P (J_0 about the origin, P the momentum of the free components)
-        p0, p1 = model.r0[0], model.r0[-1]
+        p0, p1 = model.rod.r0[0], model.rod.r0[-1]
         axis = (p1 - p0) / np.linalg.norm(p1 - p0)
         Jp = J - np.cross(p0, P)
         return float(np.max(np.abs((Jp - Jp[0]) @ axis)) / Jscale), MOMENTUM_RTOL

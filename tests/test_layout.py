@@ -8,9 +8,9 @@ from helpers import gas_scene, make
 def test_no_wall_means_no_radius_unknowns():
     _, m = make(gas_scene(wall=False))
     assert "R" not in m.layout
-    assert m.nz == m.M - 1  # interior labels only
-    assert [t.name for t in m.terms] == ["internal"]
-    assert m.nlam == 0
+    assert m.nz == m.tube.M - 1  # interior labels only
+    assert [t.name for t in m.tube.terms] == ["internal"]
+    assert m.tube.nlam == 0
 
 
 def test_no_fluid_means_no_labels():
@@ -20,21 +20,21 @@ def test_no_fluid_means_no_labels():
     _, m = make(d)
     assert "s" not in m.layout and "mu" not in m.layout
     assert m.nz == m.N + 1
-    assert all(t.name != "internal" for t in m.terms)
+    assert all(t.name != "internal" for t in m.tube.terms)
 
 
 def test_dynamic_wall_and_gas_layout():
     _, m = make(gas_scene(nodes=17, parcels=10))
     assert m.layout == {"s": slice(0, 9), "R": slice(9, 26)}
-    assert m.nq == 26 and m.nlam == 0
+    assert m.tube.nq == 26 and m.tube.nlam == 0
 
 
 def test_quasistatic_wall_radii_are_algebraic():
     d = gas_scene(nodes=17, parcels=10)
     d["wall"] = {"model": "quasistatic", "beta1": 10.0, "beta2": 1e5}
     _, m = make(d)
-    assert m.nq == 9 and m.nlam == 17
-    assert np.all(m.mass > 0)
+    assert m.tube.nq == 9 and m.tube.nlam == 17
+    assert np.all(m.tube.mass > 0)
 
 
 def test_incompressible_adds_one_multiplier_per_parcel():
@@ -42,13 +42,13 @@ def test_incompressible_adds_one_multiplier_per_parcel():
     d["fluid"] = {"model": "incompressible", "density": 1000.0, "parcels": 10}
     _, m = make(d)
     assert m.layout["mu"].stop - m.layout["mu"].start == 10
-    assert "internal" not in [t.name for t in m.terms]
+    assert "internal" not in [t.name for t in m.tube.terms]
 
 
 def test_periodic_labels_and_nodes():
     _, m = make(gas_scene(nodes=17, parcels=10, ends="periodic"))
     assert m.layout["s"] == slice(0, 10)
-    assert m.nR == 16
+    assert m.tube.nR == 16
 
 
 def test_terms_only_for_effects_present():
@@ -56,10 +56,10 @@ def test_terms_only_for_effects_present():
     d["environment"] = {"external_pressure": 5e4, "gravity": [0.0, 0.0, -9.81]}
     _, m = make(d)
     # a rigid wall takes no work from p_ext, and gravity across a fixed axis does nothing
-    assert [t.name for t in m.terms] == ["internal"]
+    assert [t.name for t in m.tube.terms] == ["internal"]
     d["environment"]["gravity"] = [9.81, 0.0, 0.0]
     _, m = make(d)
-    assert [t.name for t in m.terms] == ["internal", "gravity"]
+    assert [t.name for t in m.tube.terms] == ["internal", "gravity"]
 
 
 def test_invariants_follow_term_declarations():

@@ -172,19 +172,19 @@ def test_model_gives_nan_outside_the_domain_instead_of_calling_kernels():
     model, sim = _folded_sim()
     z = np.concatenate([sim.state.q, sim.state.lam])
     sl = model.layout["s"]
-    z[sl.start + 5] += 2.5 * model.L / model.M  # label 6 past labels 7 and 8
-    cfg = model.config(z)
-    assert model.label_problem(cfg)[0] == 6
-    assert np.all(np.isnan(model.gradient(cfg)))
-    assert np.isnan(model.potential(cfg))
-    H = model.hessian(cfg)
-    assert H.shape == (model.nconfig, model.nconfig) and np.isnan(H.diagonal()).all()
+    z[sl.start + 5] += 2.5 * model.L / model.tube.M  # label 6 past labels 7 and 8
+    cfg = model.tube.config(z)
+    assert model.tube.label_problem(cfg)[0] == 6
+    assert np.all(np.isnan(model.tube.gradient(cfg)))
+    assert np.isnan(model.tube.potential(cfg))
+    H = model.tube.hessian(cfg)
+    assert H.shape == (model.tube.nconfig, model.tube.nconfig) and np.isnan(H.diagonal()).all()
 
 
 def test_step_from_a_folded_state_raises_one_line():
     model, sim = _folded_sim()
     sl = model.layout["s"]
-    sim.state.q[sl.start + 5] += 2.5 * model.L / model.M
+    sim.state.q[sl.start + 5] += 2.5 * model.L / model.tube.M
     with pytest.raises(SolverError) as exc:
         sim.step()
     msg = str(exc.value)
@@ -197,7 +197,7 @@ def test_explicit_step_that_folds_the_new_level_raises():
     model, sim = _folded_sim("trapezoidal")
     sl = model.layout["s"]
     k = sl.start + 5
-    sim.state.p[k] = 3.0 * model.L / model.M / sim.h * model.mass[k]  # label 6 jumps three parcels in one step
+    sim.state.p[k] = 3.0 * model.L / model.tube.M / sim.h * model.tube.mass[k]  # label 6 jumps three parcels in one step
     with pytest.raises(SolverError, match=r"^step 1 \(t = 1e-05 s\): labels out of order at parcel \d+ .*at the new time level"):
         sim.step()
 
@@ -217,19 +217,19 @@ def _incompressible_in_a_dynamic_wall():
 def test_incompressible_mass_monitor_measures_the_volume_constraint():
     _, model = _incompressible_in_a_dynamic_wall()
     sim = Simulation(model)
-    m_total = float(np.sum(model.m))
+    m_total = float(np.sum(model.tube.m))
     for _ in range(20):
         sim.step()
     mo = sim.monitors()
     assert mo["mass"] == pytest.approx(m_total, rel=1e-12)
     # the mass is rho0 times the tube's volume in the state's radii: inflate the wall in the state and it grows
     sl = model.layout["R"]
-    sim.state.q[sl] += 1e-3 * model.R0
-    sim.state.q_prev[sl] += 1e-3 * model.R0
+    sim.state.q[sl] += 1e-3 * model.tube.R0
+    sim.state.q_prev[sl] += 1e-3 * model.tube.R0
     grown = sim.monitors()["mass"]
     assert grown / m_total - 1 == pytest.approx(2e-3, rel=0.05)  # (1 + 1e-3)^2 - 1 of the cross-section
-    R_mid = model.config(np.concatenate([0.5 * (sim.state.q + sim.state.q_prev), sim.state.lam])).R
-    assert grown == pytest.approx(1000.0 * G.tube_volume(R_mid, model.ds, model.periodic)[0], rel=1e-12)
+    R_mid = model.tube.config(np.concatenate([0.5 * (sim.state.q + sim.state.q_prev), sim.state.lam])).R
+    assert grown == pytest.approx(1000.0 * G.tube_volume(R_mid, model.ds, model.tube.periodic)[0], rel=1e-12)
 
 
 def test_compressible_mass_monitor_integrates_the_density_field(monkeypatch):
@@ -238,14 +238,14 @@ def test_compressible_mass_monitor_integrates_the_density_field(monkeypatch):
     sim = Simulation(model)
     for _ in range(100):
         sim.step()
-    m_total = float(np.sum(model.m))
+    m_total = float(np.sum(model.tube.m))
     mo, fields = sim.monitors(), sim.fields()
     assert mo["mass"] == pytest.approx(m_total, rel=1e-13)
-    cfg = model.config(np.concatenate([sim.state.q, sim.state.lam]))
-    V = model.volumes(cfg)
-    assert abs(np.sum(V) / np.sum(model.V0) - 1) > 1e-6  # the wall moved: a density from the start would be off
+    cfg = model.tube.config(np.concatenate([sim.state.q, sim.state.lam]))
+    V = model.tube.volumes(cfg)
+    assert abs(np.sum(V) / np.sum(model.tube.V0) - 1) > 1e-6  # the wall moved: a density from the start would be off
     assert np.sum(fields["fluid/density"] * V) == pytest.approx(mo["mass"], rel=1e-14)
     # a density computed from the initial volumes (a plausible bug) shows in the monitor
-    monkeypatch.setattr(model, "density", lambda cfg, V=None: model.m / model.V0, raising=False)
+    monkeypatch.setattr(model.tube, "density", lambda cfg, V=None: model.tube.m / model.tube.V0)
     wrong = sim.monitors()["mass"]
     assert abs(wrong / m_total - 1) > 1e-6

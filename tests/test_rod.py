@@ -6,9 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from varint import build_model, parse_scene
+from varint import Simulation, build_model, parse_scene
 from varint.lie import cay, cay_inv
-from varint.rod import RodSimulation
 from varint.rod_statics import lumped_mass, rod_modes, static_equilibrium
 
 from helpers import to_toml
@@ -38,8 +37,8 @@ def _random_levels(model, rng, amp=0.05):  # noqa: D401
     """Three nearby lattice configurations (Lambda, r) around the initial one."""
     out = []
     for _ in range(3):
-        Lam = model.Lam0 @ cay(amp * rng.standard_normal((model.N + 1, 3)))
-        r = model.r0 + amp * model.ds * rng.standard_normal((model.N + 1, 3))
+        Lam = model.rod.Lam0 @ cay(amp * rng.standard_normal((model.N + 1, 3)))
+        r = model.rod.r0 + amp * model.ds * rng.standard_normal((model.N + 1, 3))
         out.append((Lam, r))
     return out
 
@@ -60,13 +59,13 @@ def test_step_residual_is_gradient_of_action_with_lie_variations(measure, extras
         xi_b = cay_inv(np.swapaxes(La, 1, 2) @ L2)
         s = 0.0
         for (Ln, rn, xi, r_1) in ((L0, r0, xi_a, ra), (La, ra, xi_b, r2)):
-            e, n = model.lagrangian_pieces(h, Ln, rn, xi, r_1)
+            e, n = model.rod.lagrangian_pieces(h, Ln, rn, xi, r_1)
             s += e.sum() + n.sum()
         return s
 
     xi01 = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
     xi12 = cay_inv(np.swapaxes(L1, 1, 2) @ L2)
-    grad = model.derivative(h, L0, r0, xi01, r1, level=1) + model.derivative(h, L1, r1, xi12, r2, level=0)
+    grad = model.rod.derivative(h, L0, r0, xi01, r1, level=1) + model.rod.derivative(h, L1, r1, xi12, r2, level=0)
     zero = np.zeros((model.N + 1, 3))
     fd = np.zeros_like(grad)
     for j in range(model.N + 1):
@@ -95,7 +94,7 @@ def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
     curvature is not admissible data: its free ends carry an unbalanced moment.)
     """
     model = tumbling_model()
-    sim = RodSimulation(model)
+    sim = Simulation(model)
     sim.step()
     m1 = sim.monitors()
     P, J, E = m1["linear_momentum"], m1["angular_momentum"], m1["energy"]
@@ -127,9 +126,9 @@ def test_free_rod_far_from_the_origin_keeps_momenta_at_round_off():
     for floating in (True, False):
         model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF, gravity=list(g),
                                       initial=dict(SPIN, velocity=[300.0, -200.0, 100.0])))
-        sim = RodSimulation(model)
+        sim = Simulation(model)
         sim.floating_origin = floating
-        M = float(np.sum(model.section.rhoA * model.w))
+        M = float(np.sum(model.rod.section.rhoA * model.rod.w))
         sim.step()
         m1 = sim.monitors()
         P1, J1, E1 = m1["linear_momentum"], m1["angular_momentum_cm"], m1["energy"]
@@ -193,12 +192,12 @@ def test_planar_free_rod_is_free():
     floating origin, like the 3D one."""
     planar = build_model(rod_scene(nodes=11, dimension=2, initial={"velocity": [1.0, 0.5, 0.0]}))
     spatial = build_model(rod_scene(nodes=11, dimension=3, initial={"velocity": [1.0, 0.5, 0.0]}))
-    assert planar.free and spatial.free and RodSimulation(planar).floating_origin
+    assert planar.rod.free and spatial.rod.free and Simulation(planar).floating_origin
     f2 = [m["frequency"] for m in rod_modes(planar, count=8)]
     f3 = [m["frequency"] for m in rod_modes(spatial, count=30)]
     elastic = [f for f in f2 if f > 1.0]
     assert elastic and all(min(abs(np.array(f3) / f - 1)) < 1e-9 for f in elastic)
-    assert not build_model(rod_scene(nodes=11, dimension=2, ends=("pinned", "free"))).free
+    assert not build_model(rod_scene(nodes=11, dimension=2, ends=("pinned", "free"))).rod.free
 
 
 # -- the benchmark cantilever of scripts/bench_pyelastica.py and docs/performance.md (PyElastica's section form):
@@ -282,7 +281,7 @@ def test_gravity_changes_momentum_by_exactly_m_g_h():
     g = np.array([0.0, -9.81, 0.0])
     model = build_model(rod_scene(nodes=11, h=1e-3, section=STIFF, measure="reference", gravity=list(g),
                                   initial={"angular_velocity": [3.0, 5.0, -2.0]}))
-    sim = RodSimulation(model)
+    sim = Simulation(model)
     mass = sim.monitors()["mass"]
     P_prev, J_prev = sim.monitors()["linear_momentum"], sim.monitors()["angular_momentum"]
     for _ in range(50):
@@ -336,8 +335,8 @@ def test_hard_stiff_shear_and_stretch_at_100x_the_explicit_limit():
     Lam, r, _ = static_equilibrium(loaded)  # released from its static deflection: ~10 degrees at the tip
     h = 100 * 2.0 / w_max
     model = build_model(rod_scene(nodes=21, dimension=2, section=sec, ends=("clamped", "free"), measure="reference", h=h))
-    model.Lam0, model.r0 = Lam, r
-    sim = RodSimulation(model)
+    model.rod.Lam0, model.rod.r0 = Lam, r
+    sim = Simulation(model)
     t, y, E = [], [], []
     for _ in range(int(2 * 2 * math.pi / w1 / h)):
         sim.step()
@@ -365,10 +364,10 @@ def test_wave_order_two_in_h(wave):
         s = np.linspace(0.0, 1.0, 21)
         amp = 1e-3 * np.sin(0.5 * math.pi * s)
         if wave == "axial":
-            model.r0 = model.r0 + np.outer(amp, [1.0, 0.0, 0.0])
+            model.rod.r0 = model.rod.r0 + np.outer(amp, [1.0, 0.0, 0.0])
         else:
-            model.Lam0 = cay(np.outer(amp, [1.0, 0.0, 0.0]) * 2.0)  # twist angle ~ 1e-3 sin(pi s / 2)
-        sim = RodSimulation(model)
+            model.rod.Lam0 = cay(np.outer(amp, [1.0, 0.0, 0.0]) * 2.0)  # twist angle ~ 1e-3 sin(pi s / 2)
+        sim = Simulation(model)
         for _ in range(int(round(T / h))):
             sim.step()
         f = sim.fields()
@@ -386,7 +385,7 @@ def test_planar_rod_is_a_reduced_model():
     m2 = build_model(rod_scene(nodes=11, dimension=2, ends=("clamped", "free")))
     m3 = build_model(rod_scene(nodes=11, dimension=3, ends=("clamped", "free")))
     assert m2.nz == 3 * 10 and m3.nz == 6 * 10  # (x, y, theta) against (r, Lambda) per free node
-    assert m2.layout == {"r": 20, "Lambda": 10}
+    assert m2.rod.layout == {"r": 20, "Lambda": 10}
     pinned = build_model(rod_scene(nodes=11, dimension=3, ends=("pinned", "free")))
     assert pinned.nz == 6 * 10 + 3  # a pinned end keeps its rotation
 
@@ -423,8 +422,8 @@ def test_pieces_kernel_equals_numpy_reference(level, measure):
     xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
     sig = (rng.standard_normal((4, model.N + 1, 3)) + 1j * rng.standard_normal((4, model.N + 1, 3))) * 1e-2
     dr = (rng.standard_normal((4, model.N + 1, 3)) + 1j * rng.standard_normal((4, model.N + 1, 3))) * 1e-3
-    ref = model.lagrangian_pieces(1e-3, L0, r0, xi, r1, sig, dr, level)
-    fast = model.pieces_fast(1e-3, L0, r0, xi, r1, sig, dr, level)
+    ref = model.rod.lagrangian_pieces(1e-3, L0, r0, xi, r1, sig, dr, level)
+    fast = model.rod.pieces_fast(1e-3, L0, r0, xi, r1, sig, dr, level)
     for a, b in zip(ref, fast):
         assert np.allclose(a, b, rtol=1e-12, atol=1e-14 * np.abs(a).max())
 
@@ -435,14 +434,14 @@ def test_accumulate_kernel_equals_numpy_reference(dimension):
     from varint.rod import _k_accumulate
 
     model = build_model(rod_scene(nodes=8, dimension=dimension))
-    _, _, colour, direction = model._cs_plan()
+    _, _, colour, direction = model.rod._cs_plan()
     B = len(colour)
     rng = np.random.default_rng(5)
     elem = rng.standard_normal((B, model.N)) + 1j * rng.standard_normal((B, model.N))
     node = rng.standard_normal((B, model.N + 1)) + 1j * rng.standard_normal((B, model.N + 1))
     out = np.zeros((model.N + 1, 6))
     _k_accumulate(elem, node, colour, direction, 1e30, out)
-    assert np.allclose(out, model.accumulate_reference(elem, node), rtol=1e-14, atol=0)
+    assert np.allclose(out, model.rod.accumulate_reference(elem, node), rtol=1e-14, atol=0)
 
 
 @pytest.mark.validation
@@ -457,19 +456,19 @@ def test_cantilever_frequencies_from_a_time_domain_run():
     h = 2 * math.pi / tim[2] / 40
     model = build_model(rod_scene(nodes=41, dimension=2, section=sec, ends=("clamped", "free"), measure="reference", h=h))
     res, X = rod_modes(model, count=3, vectors=True)
-    Mv = lumped_mass(model)[model.mask]
+    Mv = lumped_mass(model)[model.rod.mask]
     # 1 mm tip amplitude in each mode
     z = sum(X[:, i] * 1e-3 / np.max(np.abs(X[1::3, i])) for i in range(3))  # planar unknowns: (x, y, theta) per node
-    Lam0, r0 = model.Lam0.copy(), model.r0.copy()
-    model.Lam0, model.r0 = _retract(Lam0, r0, z, model.mask)
-    sim = RodSimulation(model)
+    Lam0, r0 = model.rod.Lam0.copy(), model.rod.r0.copy()
+    model.rod.Lam0, model.rod.r0 = _retract(Lam0, r0, z, model.rod.mask)
+    sim = Simulation(model)
     n = int(1.6 * 2 * math.pi / tim[0] / h)
     t, q = np.empty(n), np.empty((n, 3))
     for k in range(n):
         sim.step()
         f = sim.fields()
         Lam, r = f["rod/Lambda"], f["rod/r"]
-        u = np.concatenate([r - r0, cay_inv(np.swapaxes(Lam0, 1, 2) @ Lam)], axis=1)[model.mask]
+        u = np.concatenate([r - r0, cay_inv(np.swapaxes(Lam0, 1, 2) @ Lam)], axis=1)[model.rod.mask]
         t[k], q[k] = sim.state.t, X.T @ (Mv * u)
     for i in range(3):
         w = zero_crossing_frequency(t, q[:, i])

@@ -10,9 +10,9 @@ breaks the symmetry and the rigid-motion null space that the exact Hessian keeps
 import numpy as np
 import pytest
 
-from varint import build_model
+from varint import Simulation, build_model
 from varint.lie import cay, cay_inv, dcay_inv
-from varint.rod import EPS_CS, RodSimulation, _k_dcinvT, _k_element, banded_jacobian
+from varint.rod import EPS_CS, _k_dcinvT, _k_element, banded_jacobian
 from varint.rod_statics import _force_jacobian, _force_map
 
 from test_rod import SECTION, rod_scene, solid_section
@@ -27,10 +27,10 @@ def _levels(model, rng, amp=0.3):
     for _ in range(2):
         s = amp * rng.standard_normal((model.N + 1, 3))
         d = amp * model.ds * rng.standard_normal((model.N + 1, 3))
-        if model.dim == 2:
+        if model.rod.dim == 2:
             s[:, :2] = 0.0
             d[:, 2] = 0.0
-        out.append((model.Lam0 @ cay(s), model.r0 + d))
+        out.append((model.rod.Lam0 @ cay(s), model.rod.r0 + d))
     return out
 
 
@@ -49,10 +49,10 @@ def test_element_kernel_energy_equals_the_numpy_lagrangian(measure):
     model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"]))
     (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(1))
     xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
-    elem, _ = model.lagrangian_pieces(1e-3, L0, r0, xi, r1)
-    _, rhoA, inertia, J, K, g, _ = model._consts()
+    elem, _ = model.rod.lagrangian_pieces(1e-3, L0, r0, xi, r1)
+    _, rhoA, inertia, J, K, g, _ = model.rod._consts()
     for e in (0, 4, model.N - 1):
-        val = _k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
+        val = _k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
                          xi[e], xi[e + 1], r1[e], r1[e + 1], 0, 2, np.empty(12), np.empty(12), np.empty((5, 3, 3)),
                          np.empty((16, 3)))
         assert val == pytest.approx(elem[e], rel=1e-14)
@@ -66,9 +66,9 @@ def test_analytic_gradient_equals_complex_step_of_the_lagrangian(measure, dimens
     (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(2))
     xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
     for h in (1e-3, 1.0):
-        D1, D2, _ = model.gradients(h, L0, r0, xi, r1)
+        D1, D2, _ = model.rod.gradients(h, L0, r0, xi, r1)
         for level, D in ((0, D1), (1, D2)):
-            ref = model.derivative_complex_step(h, L0, r0, xi, r1, level)
+            ref = model.rod.derivative_complex_step(h, L0, r0, xi, r1, level)
             assert np.max(np.abs(D - ref)) <= 1e-13 * np.max(np.abs(ref)), (level, np.max(np.abs(D - ref)))
 
 
@@ -87,23 +87,26 @@ def test_assembled_jacobian_equals_finite_differences_of_the_residual(case):
     """Newton's exact Jacobian against the colour-grouped central differences of the residual (the 0.1
     Jacobian), at a state some steps into the motion and at a perturbed iterate."""
     model = build_model(rod_scene(nodes=11, h=1e-2, section=dict(SECTION, axial_stiffness=1e4, shear_stiffness=8e3), **CASES[case]))
-    sim = RodSimulation(model)
+    sim = Simulation(model)
     for _ in range(3):
         sim.step()
-    from varint.rod import _unpack
-
     N = model.N
-    Lam_n, r_n, _ = _unpack(sim.state.q, N)
-    pi_n = sim.state.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
-    guess = sim.state.v.reshape(2, N + 1, 3)
-    z = np.concatenate([guess[0], guess[1]], axis=1)[model.mask]
+    step, q0, p0 = sim.scheme, sim.state.q, sim.state.p
+    z = sim.predictor()
     z = z + 0.05 * sim.scale * np.random.default_rng(3).standard_normal(z.shape)
-    J = sim.jacobian(z, Lam_n, r_n, pi_n).toarray()
-    Jfd = sim.jacobian_fd(z, Lam_n, r_n, pi_n).toarray()
+    J = step.jacobian(q0, z).toarray()
+    mask = model.rod.mask
+
+    def full(zz):
+        R = np.zeros((N + 1, 6))
+        R[mask] = step.residual(q0, p0, zz)
+        return R
+
+    Jfd = banded_jacobian(full, z, mask, model.ds).toarray()
     assert np.max(np.abs(J - Jfd)) <= 1e-6 * np.max(np.abs(J)), np.max(np.abs(J - Jfd)) / np.max(np.abs(J))
     # the sparsity is the element stencil: nodes j-1..j+1
-    per = int(model.mask[1].sum())
-    nodes = np.repeat(np.arange(N + 1), model.mask.sum(1))
+    per = int(model.rod.mask[1].sum())
+    nodes = np.repeat(np.arange(N + 1), model.rod.mask.sum(1))
     rows, cols = np.nonzero(J)
     assert np.all(np.abs(nodes[rows] - nodes[cols]) <= 1) and per > 0
 
@@ -120,7 +123,7 @@ def test_static_hessian_equals_finite_differences_of_the_force(case):
         spin, centre = np.array([0.3, 0.2, 3.0]), np.array([0.1, 0.2, 0.3])
     (L, r), _ = _levels(model, np.random.default_rng(4))
     H = _force_jacobian(model, L, r, 0.7, spin, centre).toarray()
-    Hfd = banded_jacobian(_force_map(model, L, r, 0.7, spin, centre), np.zeros(model.nz), model.mask, model.ds).toarray()
+    Hfd = banded_jacobian(_force_map(model, L, r, 0.7, spin, centre), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
     assert np.max(np.abs(H - Hfd)) <= 1e-6 * np.max(np.abs(H)), np.max(np.abs(H - Hfd)) / np.max(np.abs(H))
 
 
@@ -134,15 +137,15 @@ def test_exact_stiffness_is_symmetric_and_annihilates_rigid_motions_to_round_off
     quotients on the exact mode, docs/performance.md); the exact one keeps both to round-off.
     """
     model = build_model(rod_scene(nodes=41, section=solid_section(rad=1e-4)))
-    K = -_force_jacobian(model, model.Lam0, model.r0).toarray()
-    Kfd = -banded_jacobian(_force_map(model, model.Lam0, model.r0), np.zeros(model.nz), model.mask, model.ds).toarray()
+    K = -_force_jacobian(model, model.rod.Lam0, model.rod.r0).toarray()
+    Kfd = -banded_jacobian(_force_map(model, model.rod.Lam0, model.rod.r0), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
     big = np.max(np.abs(K))
     rigid = []
     for k in range(3):
         a = np.zeros(3)
         a[k] = 1.0
         rigid.append(np.concatenate([np.tile(a, (model.N + 1, 1)), np.zeros((model.N + 1, 3))], 1))
-        rigid.append(np.concatenate([np.cross(a, model.r0), model.Lam0.transpose(0, 2, 1) @ a], 1))
+        rigid.append(np.concatenate([np.cross(a, model.rod.r0), model.rod.Lam0.transpose(0, 2, 1) @ a], 1))
     scale = np.max(np.abs(np.array(rigid)))
     worst = {name: max(np.max(np.abs(M @ v.ravel())) for v in rigid) / (big * scale) for name, M in (("exact", K), ("fd", Kfd))}
     asym = {name: np.max(np.abs(M - M.T)) / big for name, M in (("exact", K), ("fd", Kfd))}
@@ -185,10 +188,10 @@ def test_gradients_return_the_level_they_skip_as_zeros():
     model = build_model(rod_scene(nodes=5, initial={"curvature": [0.3, -0.5, 0.2], "angular_velocity": [1.0, 2.0, -0.5]}))
     rng = np.random.default_rng(5)
     xi = 0.01 * rng.standard_normal((model.N + 1, 3))
-    r1 = model.r0 + 1e-3 * rng.standard_normal(model.r0.shape)
-    D1, D2, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1, levels=(0, 1))
+    r1 = model.rod.r0 + 1e-3 * rng.standard_normal(model.rod.r0.shape)
+    D1, D2, _ = model.rod.gradients(1e-2, model.rod.Lam0, model.rod.r0, xi, r1, levels=(0, 1))
     assert np.all(D2 == 0.0) and np.any(D1 != 0.0)
-    D1b, D2b, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1, levels=(1, 2))
+    D1b, D2b, _ = model.rod.gradients(1e-2, model.rod.Lam0, model.rod.r0, xi, r1, levels=(1, 2))
     assert np.all(D1b == 0.0) and np.any(D2b != 0.0)
-    full1, full2, _ = model.gradients(1e-2, model.Lam0, model.r0, xi, r1)
+    full1, full2, _ = model.rod.gradients(1e-2, model.rod.Lam0, model.rod.r0, xi, r1)
     assert np.array_equal(full1, D1) and np.array_equal(full2, D2b)

@@ -6,11 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from varint import build_model, parse_scene
+from varint import Simulation, build_model, parse_scene
 from varint.analysis import gyroscopic_modes_of, spinning_shaft_whirl
 from varint.errors import SolverError
 from varint.lie import cay, dcay
-from varint.rod import RodSimulation
 from varint.rod_statics import _retract, rod_modes, rotating_frame_kinetics
 
 from helpers import to_toml
@@ -58,12 +57,12 @@ def test_rotating_frame_kinetics_blocks_match_finite_differences():
     """b, C, H are the first and second derivatives of the exact kinetic energy in the spinning frame."""
     model = build_model(rod_scene(nodes=5, initial={"curvature": [0.3, -0.5, 0.8]}))
     Omega = np.array([1.3, -0.7, 2.1])
-    Lam, r = model.Lam0, model.r0
+    Lam, r = model.rod.Lam0, model.rod.r0
     b, C, H = rotating_frame_kinetics(model, Omega, Lam, r)
-    m = model.section.rhoA * model.w
+    m = model.rod.section.rhoA * model.rod.w
     rc = (m[:, None] * r).sum(0) / m.sum()
     j = 2
-    inertia = model.section.inertia * model.w[j]
+    inertia = model.rod.section.inertia * model.rod.w[j]
 
     def T(x):  # x = (dr, sigma, dr', sigma') of node j
         dr, sig, drd, sigd = x[:3], x[3:6], x[6:9], x[9:]
@@ -124,12 +123,12 @@ def time_domain_whirl(nodes=21, h=1e-3, duration=3.0, amp=1e-4):
     from scipy.optimize import least_squares
 
     model = shaft_model(nodes, h=h)
-    s = model.r0[:, 0]
+    s = model.rod.r0[:, 0]
     z = np.zeros((model.N + 1, 6))
     z[:, 1] = amp * np.sin(math.pi * s)  # y-deflection in the first mode shape ...
     z[:, 5] = amp * math.pi * np.cos(math.pi * s)  # ... with the sections turned with it
-    model.Lam0, model.r0 = _retract(model.Lam0, model.r0, z[model.mask], model.mask)
-    sim = RodSimulation(model)
+    model.rod.Lam0, model.rod.r0 = _retract(model.rod.Lam0, model.rod.r0, z[model.rod.mask], model.rod.mask)
+    sim = Simulation(model)
     mid = model.N // 2
     ts, us = [], []
     for _ in range(int(round(duration / h))):
@@ -232,7 +231,7 @@ def test_steady_rotation_stretches_the_rod_as_the_centrifugal_tension_says():
         model = blade_model(nodes)
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
         errs.append(abs(np.linalg.norm(r[-1] - r[0]) - 1.0 - exact) / exact)
-        m = model.section.rhoA * model.w
+        m = model.rod.section.rhoA * model.rod.w
         assert np.allclose((m[:, None] * r).sum(0) / m.sum(), [0.5, 0.0, 0.0], atol=1e-12)  # the centre stays on the axis
     assert errs[-1] < 2e-3, errs
     assert np.log2(errs[1] / errs[2]) == pytest.approx(2.0, abs=0.2), errs
@@ -278,8 +277,8 @@ def test_a_run_started_in_the_steady_rotation_stays_in_it():
     for h in (2e-3, 1e-3):
         model = blade_model(21, h=h)
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
-        model.set_configuration(Lam, r)
-        sim = RodSimulation(model)
+        model.rod.set_configuration(Lam, r)
+        sim = Simulation(model)
         e0 = sim.monitors()["energy_stretch_shear"]
         assert e0 > 0
         worst = 0.0
@@ -316,9 +315,9 @@ def test_cli_static_and_modes_of_a_spinning_rod(tmp_path, capsys):
         assert h.attrs["turned_deg"] < 1e-6  # spun about a principal axis: the rod keeps its orientation
     # the momenta are those of the rigid rotation of the lumped masses (and section inertias)
     model = build_model(parse_scene(f.read_text()))
-    m = model.section.rhoA * model.w
+    m = model.rod.section.rhoA * model.rod.w
     rc = (m[:, None] * r).sum(0) / m.sum()
-    J_rigid = BLADE_SPIN[2] * (np.sum(m * np.sum((r - rc)[:, :2] ** 2, axis=1)) + np.sum(model.w) * BLADE["rotary_inertia"])
+    J_rigid = BLADE_SPIN[2] * (np.sum(m * np.sum((r - rc)[:, :2] ** 2, axis=1)) + np.sum(model.rod.w) * BLADE["rotary_inertia"])
     assert run["monitors"]["angular_momentum"][0] == pytest.approx([0.0, 0.0, J_rigid], rel=1e-12, abs=1e-14)
     assert main(["modes", str(f), "--about", "static", "--json", "-n", "8"]) == 0
     modes = json.loads(capsys.readouterr().out)["modes"]
@@ -382,7 +381,7 @@ def test_steady_rotation_of_a_rod_spun_about_no_principal_axis_is_the_nearest_on
     from varint.rod_statics import static_equilibrium
 
     model = build_model(parse_scene((Path(__file__).resolve().parent.parent / "examples" / "tumbling_rod.toml").read_text()))
-    W = model.spin
+    W = model.rod.spin
     Lam, r, info = static_equilibrium(model, spin=W)
     chord = r[-1] - r[0]
     assert abs(np.dot(chord, W)) < 1e-9 * np.linalg.norm(chord) * np.linalg.norm(W)
@@ -413,8 +412,8 @@ def blade_time_domain_flap(h, nodes=41, duration=1.0):
     z = np.zeros((model.N + 1, 6))
     z[:, 2] = 1e-4 * (shape - shape.mean())
     z[:, 4] = -1e-4 * np.gradient(shape, s)  # sections turned with the slope
-    model.set_configuration(*_retract(Lam, r, z[model.mask], model.mask))
-    sim = RodSimulation(model)
+    model.rod.set_configuration(*_retract(Lam, r, z[model.rod.mask], model.rod.mask))
+    sim = Simulation(model)
     t, tip = [], []
     for _ in range(int(round(duration / h))):
         sim.step()

@@ -385,24 +385,24 @@ def test_initial_traveling_shock_fields_are_the_profile(model):
     m = varint.build_model(scene)
     tube = _tube(a=0.4782 if model == "dynamic" else 0.0)
     wave = S.traveling_shock(tube, 447.0)
-    R_exp = wave.profile(m.node_s - 0.8)[0]
-    assert np.max(np.abs(m.R_reference - R_exp)) < 1e-13
-    assert np.max(np.abs(m.R_reference - 0.05)) > 0.01          # the wall is not at rest
-    s = np.linspace(0.0, 2.0, m.M + 1)
+    R_exp = wave.profile(m.tube.node_s - 0.8)[0]
+    assert np.max(np.abs(m.tube.R_reference - R_exp)) < 1e-13
+    assert np.max(np.abs(m.tube.R_reference - 0.05)) > 0.01          # the wall is not at rest
+    s = np.linspace(0.0, 2.0, m.tube.M + 1)
     centres = 0.5 * (s[:-1] + s[1:])
     _, rho_exp, u_exp, p_exp = wave.profile(centres - 0.8)
-    rho = m.m / m.V0
+    rho = m.tube.m / m.tube.V0
     assert np.max(np.abs(rho / rho_exp - 1)) < 1e-13
-    assert np.max(np.abs(m.eos.pressure(rho, m.S) / p_exp - 1)) < 1e-12
+    assert np.max(np.abs(m.tube.eos.pressure(rho, m.tube.S) / p_exp - 1)) < 1e-12
     u_lab = wave.profile(s - 0.8)[2]
-    assert np.max(np.abs(m.v_init[m.layout["s"]] - u_lab[1:-1])) < 1e-9
+    assert np.max(np.abs(m.tube.v_init[m.layout["s"]] - u_lab[1:-1])) < 1e-9
     if model == "dynamic":
         # the wall moves with the wave: dR/dt = -c dR/dx, here against central differences of the profile
         dx = 1e-7
-        dRdx = (wave.profile(m.node_s - 0.8 + dx)[0] - wave.profile(m.node_s - 0.8 - dx)[0]) / (2 * dx)
-        vR = m.v_init[m.layout["R"]]
+        dRdx = (wave.profile(m.tube.node_s - 0.8 + dx)[0] - wave.profile(m.tube.node_s - 0.8 - dx)[0]) / (2 * dx)
+        vR = m.tube.v_init[m.layout["R"]]
         assert np.max(np.abs(vR)) > 1.0
-        away = np.abs(m.node_s - 0.8) > 2 * dx  # the shock node: R' is continuous but the difference straddles it
+        away = np.abs(m.tube.node_s - 0.8) > 2 * dx  # the shock node: R' is continuous but the difference straddles it
         assert np.max(np.abs(vR[away] + 447.0 * dRdx[away])) < 1e-5 * np.max(np.abs(vR))
     sim = varint.make_simulation(m)
     for _ in range(3):

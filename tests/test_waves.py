@@ -54,15 +54,15 @@ def _fourier_index(v):
 def test_expandable_tube_dispersion_both_branches():
     """Modes of the periodic gas-filled rubber tube against the dispersion relation of docs/theory.md §6."""
     _, m = make(gas_scene(nodes=129, parcels=128, ends="periodic"))
-    res, X = modes(m, count=m.nq, vectors=True)
+    res, X = modes(m, count=m.tube.nq, vectors=True)
     freq = np.array([r["frequency"] for r in res])
     Rpart = X[m.layout["R"], :]
     idx = np.array([_fourier_index(Rpart[:, i]) for i in range(X.shape[1])])
-    w = m.wall
+    w = m.tube.wall
     checked = 0
     for j in (1, 2, 3):
         k = 2 * math.pi * j / m.L
-        lo, hi = dispersion_branches(k, C0, RHO0, m.R0, w.a, w.beta1, w.beta2)
+        lo, hi = dispersion_branches(k, C0, RHO0, m.tube.R0, w.a, w.beta1, w.beta2)
         f = np.sort(freq[(idx == j) & (freq > 1.0)])  # leave out the rigid translation of the fluid
         # each branch is a degenerate (cos, sin) pair
         assert len(f) >= 4
@@ -77,14 +77,14 @@ def test_dispersion_time_domain_low_branch():
     j = 2
     k = 2 * math.pi * j
     _, probe = make(gas_scene(nodes=129, parcels=128, ends="periodic"))
-    w = probe.wall
-    lo, _ = dispersion_branches(k, C0, RHO0, probe.R0, w.a, w.beta1, w.beta2)
+    w = probe.tube.wall
+    lo, _ = dispersion_branches(k, C0, RHO0, probe.tube.R0, w.a, w.beta1, w.beta2)
     # wall displacement in phase with the pressure for this branch (theory.md §6): r = 2 pi R0 p / D
     D = w.beta2 + w.beta1 * k * k - w.a * lo ** 2
     dp = 20.0
     d = gas_scene(nodes=129, parcels=128, ends="periodic", h=1e-6,
                   perturbation=[{"field": "pressure", "shape": "cosine", "amplitude": dp, "wavelength": 1.0 / j}])
-    d["wall"]["perturbation"] = [{"field": "R", "shape": "cosine", "amplitude": 2 * math.pi * probe.R0 * dp / D, "wavelength": 1.0 / j}]
+    d["wall"]["perturbation"] = [{"field": "R", "shape": "cosine", "amplitude": 2 * math.pi * probe.tube.R0 * dp / D, "wavelength": 1.0 / j}]
     _, model = make(d)
     sim = Simulation(model)
     steps = int(2.2 * 2 * math.pi / lo / 1e-6)
@@ -135,6 +135,6 @@ def test_sparse_tube_modes_equal_the_dense_ones():
     sparse = np.array([m["frequency"] for m in modes(small, count=8, method="sparse")])
     assert np.allclose(sparse, dense, rtol=1e-10)
     _, big = make(gas_scene(nodes=2001, parcels=2000))
-    assert big.nq > DENSE_TUBE_MODES_LIMIT and big.nlam == 0
+    assert big.tube.nq > DENSE_TUBE_MODES_LIMIT and big.tube.nlam == 0
     f = np.array([m["frequency"] for m in modes(big, count=4)])
     assert np.all(np.abs(f / dense[:4] - 1) < 5e-3)  # the same lowest branch, on a finer lattice

@@ -4,7 +4,7 @@ Public API::
 
     scene = varint.load_scene("examples/rubber_tube_pulse.toml")
     model = varint.build_model(scene)
-    sim = varint.make_simulation(model)   # the tube's stepper, or the rod's Lie-group one
+    sim = varint.Simulation(model)        # one stepper whatever the scene's effects
     sim.step(); sim.monitors(); sim.fields()
     varint.run_scene(scene, "out.h5")
 

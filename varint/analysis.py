@@ -21,8 +21,15 @@ __all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "sparse_
            "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl"]
 
 
+def _tube(model):
+    """The tube part of a model (its s, R, mu blocks); a part is accepted as it is."""
+    return model.tube if hasattr(model, "tube") else model
+
+
 def linearization(model, z=None):
-    """Mass (nq,) and condensed stiffness (nq, nq), dense, about z (default: the initial state)."""
+    """Mass (nq,) and condensed stiffness (nq, nq) of the tube's blocks, dense, about z (default: the
+    initial state)."""
+    model = _tube(model)
     if z is None:
         z = np.concatenate([model.q_init, model.lam_init])
     H = model.hessian(model.config(z))
@@ -46,8 +53,10 @@ def modes(model, count=20, z=None, vectors=False, method="auto"):
     sorted by frequency (an unstable mode has frequency 0 and sigma > 0);
     with ``vectors`` the mode shapes (nq, count) are returned too.  ``method``: "dense", "sparse"
     (shift-invert Lanczos for the lowest ``count``; models without algebraic unknowns) or "auto"
-    (sparse above :data:`DENSE_TUBE_MODES_LIMIT` inertial unknowns when possible).
+    (sparse above :data:`DENSE_TUBE_MODES_LIMIT` inertial unknowns when possible).  Rods: see
+    :func:`varint.rod_statics.rod_modes`.
     """
+    model = _tube(model)
     sparse = method == "sparse" or (method == "auto" and model.nq > DENSE_TUBE_MODES_LIMIT)
     if sparse and model.nlam:
         if model.nq > 6000:

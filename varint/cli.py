@@ -159,34 +159,28 @@ def cmd_static(args):
     from .errors import VarintError as _VE
     from .io import RunWriter
     from .model import build_model
-    from .rod import RodModel, RodSimulation, _pack
     from .rod_statics import static_equilibrium
     from .runner import check_output, default_output
-    from .stepper import State
+    from .stepper import Simulation
 
     scene = _load_scene(args.scene)
     out = args.output or default_output(scene, args.scene, kind="static")
     check_output(out, args.scene, force=args.force, resumable=False)
     model = build_model(scene)
-    if not isinstance(model, RodModel):
+    if model.rod is None:
         raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes only in this version")
-    spinning = bool(np.any(model.spin))
-    Lam, r, info = static_equilibrium(model, spin=model.spin if spinning else None)
-    sim = RodSimulation(model)
-    n6 = 6 * (model.N + 1)
-    if spinning:  # the steady rotation: its shape, with the momenta of the rigid rotation
-        model.set_configuration(Lam, r)
-        p = np.concatenate([model.p0.ravel(), model.Pi0.ravel()])
-    else:
-        p = np.zeros(n6)
-    sim.state = State(0, 0.0, _pack(Lam, r), p, np.empty(0), np.zeros(n6))
+    spinning = bool(np.any(model.rod.spin))
+    Lam, r, info = static_equilibrium(model, spin=model.rod.spin if spinning else None)
+    # the steady rotation: its shape with the momenta of the rigid rotation; a static equilibrium: at rest
+    model.rod.set_configuration(Lam, r, rest=not spinning)
+    sim = Simulation(model)
     w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
     try:
         w.append(0.0, sim.monitors(), sim.fields(), sim.state)
         w.f.attrs["static"] = True
         w.f.attrs["load_steps"] = info["load_steps"]
         if spinning:
-            w.f.attrs["steady_rotation"] = model.spin
+            w.f.attrs["steady_rotation"] = model.rod.spin
             w.f.attrs["turned_deg"] = info["turned_deg"]
     finally:
         w.close()

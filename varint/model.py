@@ -1,65 +1,50 @@
-"""A model assembled from a scene: unknowns, masses and potential terms of its effects only.
+"""One model of a scene: named blocks of unknowns, the terms of its discrete Lagrangian, its forces.
 
-Layout
-------
-*Configuration space* holds every lattice quantity a term can read:
-``[s_0..s_M | R_0..R_{nR-1} | mu_0..mu_{M-1}]`` (blocks present only when
-their effect is on).  *Unknowns* are what a step solves for:
+A scene's effects decide which blocks exist (docs/theory.md §3, §9, §10.1):
 
-``q`` (carry inertia, live at time levels)
-    interior labels ``s`` (closed ends) or labels ``s_0..s_{M-1}`` (periodic);
-    nodal radii ``R`` of a dynamic wall.
-``lam`` (algebraic, live at half levels in the midpoint scheme)
-    nodal radii of a quasistatic wall; pressure multipliers ``mu``.
+========  ===========================================  =====================  ===========================
+block     what                                         kind                   present when
+========  ===========================================  =====================  ===========================
+s         fluid labels                                 inertial               ``[fluid]``
+R         wall radii at the nodes                      inertial / algebraic   ``[wall]`` dynamic / quasistatic
+mu        pressure multipliers                         algebraic              incompressible ``[fluid]``
+r         rod node positions                           inertial               ``[rod]``
+Lambda    rod frames (SO(3), Cayley retraction)        inertial               ``[rod]``
+========  ===========================================  =====================  ===========================
 
-``config = B @ concat(q, lam) + c0``; ``B`` is a constant sparse selection and
-``c0`` holds the fixed end labels, the period shift and a rigid wall's radii.
+Without ``[rod]`` the centreline is fixed and straight (no r, Lambda unknowns); without ``[wall]`` the
+radius is prescribed (no R unknowns).  The blocks are grouped in two parts that own their physics:
+:class:`varint.tube.TubePart` (s, R, mu on the fixed centreline) and :class:`varint.rod.RodPart`
+(r, Lambda).  The discrete Lagrangian is the sum of the step terms of :mod:`varint.step_terms`
+(kinetic terms included); one stepper (:class:`varint.stepper.Simulation`) solves its discrete
+Euler-Lagrange equations whatever blocks are present.
+
+Layouts (documented because checkpoints store them; docs/output.md)
+-------------------------------------------------------------------
+step unknowns ``z``
+    ``[tube inertial q_{n+1} | tube algebraic lam | rod (b_j, xi_j) on the support mask, node-major]``
+    with b_j = Lambda_j^n^T (r_j^{n+1} - r_j^n) (body-frame displacement) and
+    xi_j = cay^-1(Lambda_j^n^T Lambda_j^{n+1}): the charts of the r and Lambda blocks.
+level vector ``q`` (``State.q``)
+    ``[tube q | rod r (relative to the floating origin) | rod Lambda | rod origin (3)]``
+momenta ``p`` (``State.p``)
+    ``[tube p | rod spatial p (N+1, 3) | rod body Pi (N+1, 3)]`` (the rod's on every node: supported
+    components hold the support's reaction impulse)
+predictor data ``v`` (``State.v``)
+    ``[tube velocities | rod b (N+1, 3) | rod xi (N+1, 3)]`` of the last step
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
-import scipy.sparse as sp
 
-from . import terms as T
 from .errors import SceneError
-from .forces import Declaration, derive_invariants
-from .geometry import label_problem, parcel_volumes, radius_at
-from .initial import initial_fields, shape_profile
-from .thermo import make_eos
+from .forces import derive_invariants
+from .rod import RodPart, pack_level
+from .step_terms import RodElements, TubeKinetic, TubeMidpointPotential, TubeTrapezoidalPotential
+from .tube import TubePart
 
-__all__ = ["Model", "build_model", "WallParameters", "wall_parameters"]
-
-
-@dataclass(frozen=True)
-class WallParameters:
-    """Resolved wall coefficients (SI); ``a = 0`` for a quasistatic wall."""
-
-    law: str
-    a: float
-    beta1: float = 0.0
-    beta2: float = 0.0
-    stiffness: float = 0.0
-    tension: float = 0.0
-
-
-def wall_parameters(wall, R0):
-    """The paper's coefficients (eq. ``beta_1_2``) from a scene's ``[wall]``."""
-    h, E, nu, rho_s = wall.thickness, wall.youngs_modulus, wall.poisson_ratio, wall.density
-    if wall.model == "quasistatic":
-        a = 0.0
-    else:
-        a = wall.a if wall.a is not None else 2 * math.pi * R0 * rho_s * h
-    if wall.law == "linear":
-        G = None if E is None else E / (2 * (1 + nu))
-        beta1 = wall.beta1 if wall.beta1 is not None else 2 * math.pi * wall.shear_coefficient * G * h * R0
-        beta2 = wall.beta2 if wall.beta2 is not None else 2 * math.pi / R0 * E * h / (1 - nu * nu)
-        return WallParameters("linear", a, beta1=beta1, beta2=beta2)
-    stiffness = wall.stiffness if wall.stiffness is not None else E * h / (R0 * (1 - nu * nu))
-    return WallParameters("tube-law", a, stiffness=stiffness, tension=wall.tension)
+__all__ = ["Model", "build_model"]
 
 
 class Model:
@@ -67,322 +52,107 @@ class Model:
 
     def __init__(self, scene):
         self.scene = scene
-        tube = scene.tube
-        self.L = tube.length
-        self.N = tube.nodes - 1
+        self.L = scene.tube.length
+        self.N = scene.tube.nodes - 1
         self.ds = self.L / self.N
-        self.R0 = tube.radius
-        self.has_wall = scene.wall is not None
-        self.has_fluid = scene.fluid is not None
-        self.periodic = self.has_fluid and scene.fluid.ends.s0 == "periodic"
-        self.nR = self.N if self.periodic else self.N + 1
-        self.wall_dynamic = self.has_wall and scene.wall.model == "dynamic"
-        self.incompressible = self.has_fluid and scene.fluid.model == "incompressible"
         self.scheme = scene.time.scheme
-        self.eos = make_eos(scene.fluid) if self.has_fluid and not self.incompressible else None
-        self.M = scene.fluid.parcels if self.has_fluid else 0
-        self.wall = wall_parameters(scene.wall, self.R0) if self.has_wall else None
-        self.p_ext = scene.environment.external_pressure
-        self.gx = scene.environment.gravity[0]
+        has_tube_effect = scene.fluid is not None or scene.wall is not None
+        #: the s, R, mu blocks on the fixed straight centreline (None without [fluid] and [wall], unless
+        #: there is no rod either: an empty tube is still a valid, if dull, scene)
+        self.tube = TubePart(scene) if has_tube_effect or scene.rod is None else None
+        #: the r, Lambda blocks (None without [rod])
+        self.rod = RodPart(scene) if scene.rod is not None else None
+        if self.tube is not None and self.rod is not None and has_tube_effect:
+            # the scene reader refuses this combination until the coupled terms of docs/theory.md §10 land
+            raise SceneError("[rod] with [fluid] or [wall] (the coupled tube) is not available yet", source=scene.path)
         self._layout()
-        self._initial_state()
-        self._terms()
+        self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
 
-    # -- layout -------------------------------------------------------------
+    # -- layout -----------------------------------------------------------------------
 
     def _layout(self):
-        M, nR = self.M, self.nR
-        nlab = M + 1 if self.has_fluid else 0
-        self.index = {"s": 0, "R": nlab, "mu": nlab + nR}
-        self.nconfig = nlab + nR + (M if self.incompressible else 0)
-        blocks = {}
-        pos = 0
-        if self.has_fluid:
-            n = M if self.periodic else M - 1
-            blocks["s"] = slice(pos, pos + n)
-            pos += n
-        if self.wall_dynamic:
-            blocks["R"] = slice(pos, pos + nR)
-            pos += nR
-        self.nq = pos
-        if self.has_wall and not self.wall_dynamic:
-            blocks["R"] = slice(pos, pos + nR)
-            pos += nR
-        if self.incompressible:
-            blocks["mu"] = slice(pos, pos + M)
-            pos += M
-        self.nz = pos
-        self.nlam = self.nz - self.nq
-        #: unknown blocks by name, slices into concat(q, lam)
-        self.layout = blocks
-        rows, cols = [], []
-        if self.has_fluid:
-            if self.periodic:
-                lab = np.arange(M)
-                rows += [lab, [M]]
-                cols += [blocks["s"].start + lab, [blocks["s"].start]]
-            else:
-                lab = np.arange(1, M)
-                rows.append(lab)
-                cols.append(blocks["s"].start + lab - 1)
-        if self.has_wall:
-            rows.append(self.index["R"] + np.arange(nR))
-            cols.append(blocks["R"].start + np.arange(nR))
-        if self.incompressible:
-            rows.append(self.index["mu"] + np.arange(M))
-            cols.append(blocks["mu"].start + np.arange(M))
-        r = np.concatenate([np.asarray(x, dtype=np.int64) for x in rows]) if rows else np.empty(0, np.int64)
-        c = np.concatenate([np.asarray(x, dtype=np.int64) for x in cols]) if cols else np.empty(0, np.int64)
-        self.B = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(self.nconfig, self.nz))
-        self.c0 = np.zeros(self.nconfig)
-        if self.has_fluid:
-            if self.periodic:
-                self.c0[M] = self.L
-            else:
-                self.c0[M] = self.L  # s_0 = 0 and s_M = L are fixed
-        # trapezoidal weights of the nodal (lumped) wall terms
-        w = np.full(nR, self.ds)
-        if not self.periodic:
-            w[0] = w[-1] = 0.5 * self.ds
-        self.node_weights = w
-        self.node_s = np.arange(nR) * self.ds
+        t, r = self.tube, self.rod
+        nz_t = t.nz if t is not None else 0
+        nq_t = t.nq if t is not None else 0
+        nz_r = r.nz if r is not None else 0
+        #: slices of each part in the step unknowns, the level vector and the momenta
+        self.tube_z, self.rod_z = slice(0, nz_t), slice(nz_t, nz_t + nz_r)
+        n1 = (self.N + 1) if r is not None else 0
+        self.tube_q, self.rod_q = slice(0, nq_t), slice(nq_t, nq_t + (12 * n1 + 3 if r is not None else 0))
+        self.tube_p, self.rod_p = slice(0, nq_t), slice(nq_t, nq_t + 6 * n1)
+        self.nz = nz_t + nz_r
+        #: unknown blocks by name: indices (slice or array) into the step unknowns z
+        self.layout = dict(t.layout) if t is not None else {}
+        if r is not None:
+            idx = np.full((self.N + 1, 6), -1)
+            idx[r.mask] = nz_t + np.arange(nz_r)
+            for name, cols in (("r", slice(0, 3)), ("Lambda", slice(3, 6))):
+                sel = idx[:, cols]
+                self.layout[name] = np.sort(sel[sel >= 0])
+        #: the kinds of the blocks present (the stepper's options and checks follow from them)
+        self.has_frames = r is not None
 
     @property
     def unknown_names(self):
         return list(self.layout)
 
-    # -- initial state ------------------------------------------------------
-
-    def _initial_state(self):
-        sc = self.scene
-        R_init = np.full(self.nR, self.R0)
-        if not self.has_wall and sc.tube.area_table is not None:
-            tab = np.array(sc.tube.area_table)
-            R_init = np.sqrt(np.interp(self.node_s, tab[:, 0], tab[:, 1]) / math.pi)
-        if self.has_wall:
-            for p in sc.wall.perturbation:
-                R_init = R_init + shape_profile(p, self.node_s)
-            if np.any(R_init <= 0):
-                raise ValueError("wall.perturbation: makes the radius non-positive somewhere")
-        self.R_reference = R_init.copy()
-        # Unknowns are displacements from the reference lattice (c0 holds the reference): the
-        # round-off of a step then scales with the motion, not with the absolute position, which
-        # keeps momentum maps conserved to the Newton tolerance on long tubes.
-        self.c0[self.index["R"]:self.index["R"] + self.nR] = R_init
-        q = np.zeros(self.nq)
-        lam = np.zeros(self.nlam)
-        v = np.zeros(self.nq)
-        self.m = np.zeros(self.M)
-        self.S = np.zeros(self.M)
-        if self.has_fluid:
-            f = initial_fields(sc.fluid, self.eos)
-            s = np.linspace(0.0, self.L, self.M + 1)
-            V = parcel_volumes(s, R_init, self.ds, self.periodic)
-            centres = 0.5 * (s[:-1] + s[1:])
-            rho, S, u_lab = f.density(centres), f.entropy(centres), f.velocity(s)
-            self.m = rho * V
-            self.S = S
-            self.V0 = V.copy()
-            self.rho0 = sc.fluid.density
-            sl = self.layout["s"]
-            self.c0[: self.M] = s[:-1]  # with c0[M] = L from the layout: labels at rest positions
-            if self.periodic:
-                v[sl] = u_lab[:-1]
-            else:
-                v[sl] = u_lab[1:-1]
-            if self.incompressible:
-                lam[self.layout["mu"].start - self.nq:] = sc.fluid.pressure
-            ts = getattr(sc.fluid, "traveling_shock", None)
-            if ts is not None and self.wall_dynamic:
-                # [initial.traveling_shock]: the wall moves with the wave, dR/dt = -c dR/dx
-                v[self.layout["R"]] = ts.wave.wall_velocity(self.node_s - ts.position)[: self.nR]
-        self.mass = self._mass_vector()
-        self.q_init, self.lam_init, self.v_init = q, lam, v
-        self.p_init = self.mass * v
-
-    def _mass_vector(self):
-        mass = np.zeros(self.nq)
-        if self.has_fluid:
-            m = self.m
-            lab = 0.5 * (np.roll(m, 1) + m)  # label k between parcels k-1 and k
-            self.label_mass_config = np.zeros(self.M + 1)
-            if self.periodic:
-                mass[self.layout["s"]] = lab
-                self.label_mass_config[:-1] = lab
-            else:
-                mass[self.layout["s"]] = lab[1:]
-                self.label_mass_config[1:-1] = lab[1:]
-        if self.wall_dynamic:
-            mass[self.layout["R"]] = self.wall.a * self.node_weights
-        return mass
-
-    # -- terms --------------------------------------------------------------
-
-    def _terms(self):
+    def step_terms(self, scheme=None):
+        """The terms of L_d for ``scheme`` (default: the scene's ``time.scheme``), kinetic ones included."""
+        scheme = scheme or self.scheme
         terms = []
-        uniform_rigid = not self.has_wall and self.scene.tube.area_table is None
-        geom = (self.ds, self.periodic, self.has_wall)
-        if self.has_fluid:
-            if self.incompressible:
-                terms.append(T.Incompressibility(geom, self.V0, uniform_rigid))
-            else:
-                terms.append(T.InternalEnergy(geom, self.eos, self.m, self.S, uniform_rigid))
-            if self.gx != 0.0:
-                terms.append(T.Gravity(self.label_mass_config, self.gx))
-        if self.has_wall:
-            w = self.wall
-            if w.law == "linear":
-                terms.append(T.WallLinear(self.ds, self.node_weights, self.periodic, w.beta1, w.beta2, self.R0))
-            else:
-                terms.append(T.WallTubeLaw(self.ds, self.node_weights, self.periodic, w.stiffness, w.tension, self.R0))
-            if self.p_ext != 0.0:
-                terms.append(T.ExternalPressure(self.ds, self.periodic, self.p_ext))
-        self.terms = terms
+        if self.tube is not None:
+            terms.append(TubeKinetic(self.tube, self.tube_z.start, self.nz))
+            pot = {"midpoint": TubeMidpointPotential, "trapezoidal": TubeTrapezoidalPotential}[scheme]
+            terms.append(pot(self.tube, self.tube_z.start, self.nz))
+        if self.rod is not None:
+            if scheme != "midpoint":
+                raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")
+            terms.append(RodElements(self.rod, self.rod_z.start, self.nz))
+        return terms
+
+    @property
+    def forces(self):
+        """Non-conservative forces (discrete Lagrange-d'Alembert, varint.forces)."""
+        return list(self.rod.forces) if self.rod is not None else []
+
+    # -- initial state -------------------------------------------------------------------
+
+    def initial_state(self, h):
+        """(q, p, lam, v) at t = 0 in the layouts of the module docstring; ``v`` is the predictor's
+        data of a fictitious previous step of size ``h`` (the rod's b and xi scale with h)."""
+        q, p, lam, v = [], [], [], []
+        t, r = self.tube, self.rod
+        if t is not None:
+            q.append(t.q_init)
+            p.append(t.p_init)
+            lam.append(t.lam_init)
+            v.append(t.v_init)
+        if r is not None:
+            q.append(pack_level(r.Lam0, r.r0))
+            p += [r.p0.ravel(), r.Pi0.ravel()]
+            # the last step's displacement in the body frame it started from, and xi: exact for a rigid rotation
+            v += [np.einsum("nji,nj->ni", r.Lam0, h * r.v0).ravel(), (h * r.omega0).ravel()]
+        cat = lambda xs: np.concatenate(xs) if xs else np.empty(0)  # noqa: E731
+        return cat(q), cat(p), cat(lam), cat(v)
+
+    def upgrade_level(self, q):
+        """A level vector from a checkpoint written before the rod's floating origin existed gains it."""
+        if self.rod is not None and len(q) == self.rod_q.stop - 3:
+            return np.concatenate([q, np.zeros(3)])
+        return q
+
+    # -- declarations ---------------------------------------------------------------------
 
     def invariants(self):
-        """Invariants this model keeps, from the terms' declarations and the boundaries."""
-        base = ["energy"]
-        if self.has_fluid:
-            base += ["mass", "parcel_entropy"] if self.eos is not None and self.eos.has_entropy else ["mass"]
-            if self.periodic:  # closed ends hold the fluid: only a periodic tube can keep its axial momentum
-                base.append("axial_momentum")
-        if self.incompressible:
-            base.append("parcel_volume")
-        # the same rule as the rod's (varint.forces): a term's `breaks` removes what it names
-        return derive_invariants([Declaration(t.name, {b: None for b in t.breaks}) for t in self.terms], base=base)
-
-    # -- configuration and potential ----------------------------------------
-
-    def config(self, z):
-        """Configuration (s, R, mu) from the unknown vector z = concat(q, lam)."""
-        c = self.B @ z + self.c0
-        i = self.index
-        s = c[: i["R"]]
-        R = c[i["R"]: i["R"] + self.nR]
-        mu = c[i["mu"]:] if self.incompressible else None
-        return T.Config(s, R, mu)
-
-    def label_problem(self, cfg):
-        """``(k, text)`` naming the first label that folds the lattice or leaves the tube, or None.
-
-        Closed tubes: labels inside ``[0, L]`` and strictly increasing; periodic tubes: strictly
-        increasing over one period (see :func:`varint.geometry.label_problem`).
-        """
-        if not self.has_fluid:
-            return None
-        return label_problem(cfg.s, self.nR, self.ds, self.periodic)
-
-    def energies(self, cfg):
-        """Each potential term's value (the multiplier term is left out: it vanishes on the constraint).
-
-        NaN for every term when the labels are outside the lattice's domain (:meth:`label_problem`).
-        """
-        cache = {}
-        bad = self.label_problem(cfg) is not None
-        return {t.name: (math.nan if bad else t.energy(cfg, cache)) for t in self.terms if t.name != "incompressibility"}
-
-    def potential(self, cfg):
-        if self.label_problem(cfg) is not None:
-            return math.nan
-        cache = {}
-        return sum(t.energy(cfg, cache) for t in self.terms)
-
-    def gradient(self, cfg):
-        """Gradient of the potential in configuration index space.
-
-        All NaN when the labels fold or leave the tube: a Newton iterate there has a non-finite
-        residual, which fails the step cleanly instead of evaluating the kernels outside their domain.
-        """
-        if self.label_problem(cfg) is not None:
-            return np.full(self.nconfig, np.nan)
-        gs = np.zeros(self.index["R"])
-        gR = np.zeros(self.nR)
-        gmu = np.zeros(self.M if self.incompressible else 0)
-        cache = {}
-        for t in self.terms:
-            t.gradient(cfg, cache, gs, gR, gmu)
-        return np.concatenate([gs, gR, gmu])
-
-    def hessian(self, cfg):
-        """Hessian of the potential in configuration index space (CSR); NaN on the diagonal when the labels are invalid."""
-        if self.label_problem(cfg) is not None:
-            return sp.diags(np.full(self.nconfig, np.nan)).tocsr()
-        cache = {}
-        parts = [t.hessian(cfg, cache, self.index) for t in self.terms]
-        r = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
-        c = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, np.int64)
-        v = np.concatenate([p[2] for p in parts]) if parts else np.empty(0)
-        return sp.csr_matrix((v, (r, c)), shape=(self.nconfig, self.nconfig))
-
-    # -- observables ----------------------------------------------------------
-
-    def volumes(self, cfg):
-        return parcel_volumes(cfg.s, cfg.R, self.ds, self.periodic)
-
-    def density(self, cfg, V=None):
-        """Density of each parcel in configuration ``cfg``.
-
-        Compressible fluid: ``m_k / V_k`` with ``V_k`` the parcel volume of ``cfg`` (the density the
-        equation of state sees).  Incompressible fluid: the parcel's own constant density
-        ``m_k / V0_k`` (its volume is constrained, the density is not derived from it).
-        """
-        if self.incompressible:
-            return self.m / self.V0
-        return self.m / (self.volumes(cfg) if V is None else V)
-
-    def fluid_mass(self, cfg):
-        """``sum_k rho_k V_k``: the density field of :meth:`density` integrated over the parcel volumes of ``cfg``.
-
-        Evaluated from the state, not from the parcel masses: for an incompressible fluid it measures the
-        volume constraint (``rho0 sum_k V_k``), for a compressible one it checks that the density field
-        and the configuration's volumes agree.
-        """
-        V = self.volumes(cfg)
-        return float(np.sum(self.density(cfg, V) * V))
-
-    def fluid_fields(self, cfg, p_q):
-        """Density, pressure (parcels) and velocity (labels) at one time level."""
-        V = self.volumes(cfg)
-        rho = self.density(cfg, V)
-        if self.incompressible:
-            pressure = cfg.mu.copy()
-        else:
-            pressure = self.eos.pressure(rho, self.S)
-        u = np.zeros(self.M + 1)
-        sl = self.layout["s"]
-        vel = p_q[sl] / self.mass[sl]
-        if self.periodic:
-            u[:-1] = vel
-            u[-1] = vel[0]
-        else:
-            u[1:-1] = vel
-        return rho, pressure, u
-
-    def full_radius(self, cfg):
-        """Nodal radii 0..N (the periodic node N repeats node 0)."""
-        return np.append(cfg.R, cfg.R[0]) if self.periodic else cfg.R.copy()
-
-    def radius_at(self, x, cfg):
-        return radius_at(x, cfg.R, self.ds, self.periodic)
+        """Invariants this model keeps, derived from its terms', forces' and ends' declarations."""
+        if self.rod is not None:
+            return derive_invariants(self.rod.declarations())
+        return self.tube.invariants()
 
     def describe(self):
         """Dictionary for ``varint check``: effects, unknowns, invariants, resolved numbers."""
-        d = {
-            "effects": self.scene.effects,
-            "unknowns": {name: sl.stop - sl.start for name, sl in self.layout.items()},
-            "unknowns_total": self.nz,
-            "inertial_unknowns": self.nq,
-            "algebraic_unknowns": self.nlam,
-            "terms": [t.name for t in self.terms],
-            "invariants": self.invariants(),
-            "scheme": self.scheme,
-            "lattice": {"elements": self.N, "ds": self.ds, "parcels": self.M, "periodic": self.periodic},
-        }
-        if self.wall is not None:
-            d["wall"] = {k: getattr(self.wall, k) for k in ("law", "a", "beta1", "beta2", "stiffness", "tension")}
-        if self.has_fluid:
-            d["fluid"] = {"model": self.scene.fluid.model, "total_mass": float(np.sum(self.m)),
-                          "external_pressure": self.p_ext}
+        d = self.rod.describe() if self.rod is not None else self.tube.describe()
+        d["scheme"] = self.scheme
         return d
 
 
@@ -393,10 +163,6 @@ def build_model(scene):
     a radius or density non-positive) are reported as :class:`SceneError`.
     """
     try:
-        if scene.rod is not None:
-            from .rod import RodModel
-
-            return RodModel(scene)
         return Model(scene)
     except ValueError as exc:
         raise SceneError(str(exc), source=scene.path) from None

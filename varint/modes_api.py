@@ -39,14 +39,13 @@ def scene_modes(scene, count=20, about="initial", source=None):
         raise VarintError(f"modes: -n/--count must be >= 1, got {count}")
     from .analysis import modes
     from .model import build_model
-    from .rod import RodModel
     from .rod_statics import rod_modes
 
     source = source if source is not None else (scene.path or "scene")
     model = build_model(scene)
     d = {"about": about}
-    if isinstance(model, RodModel):
-        spin = model.spin  # rod.initial.angular_velocity
+    if model.rod is not None:
+        spin = model.rod.spin  # rod.initial.angular_velocity
         if about == "static":
             from .rod_statics import static_equilibrium
 
@@ -57,10 +56,10 @@ def scene_modes(scene, count=20, about="initial", source=None):
                 d["remark"] = f"the steady rotation found has {_turned(info)}"
         else:
             res = rod_modes(model, count=count)
-            loads = _loads(model)
+            loads = _loads(model.rod)
             if loads:
                 d["note"] = (f"{source} has loads ({', '.join(loads)}): these modes are about the initial, unloaded "
-                             "state, not the loaded equilibrium" + ("" if model.free else "; use --about static for that"))
+                             "state, not the loaded equilibrium" + ("" if model.rod.free else "; use --about static for that"))
         if np.any(spin):
             d["frame"] = {"angular_velocity": [float(x) for x in spin],
                           "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}

@@ -37,10 +37,8 @@ from numba import njit
 from .errors import SolverError
 from .forces import Declaration, TipTorque, derive_invariants
 from .lie import cay, cay_inv
-from .newton import newton, newton_damped
-from .stepper import State, StepStats
 
-__all__ = ["RodSection", "RodModel", "RodSimulation", "rod_section", "banded_jacobian", "reorthonormalize"]
+__all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
 
 EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
 CHI = np.array([1.0, 0.0, 0.0])
@@ -120,8 +118,8 @@ def _mv(A, v):
     return np.einsum("...ij,...j->...i", A, v)
 
 
-class RodModel:
-    """Unknowns, section and loads of a scene's ``[rod]``."""
+class RodPart:
+    """Unknowns, section, loads and element kernels of a scene's ``[rod]``: the r and Lambda blocks of the model."""
 
     def __init__(self, scene):
         rod = scene.rod
@@ -186,11 +184,14 @@ class RodModel:
     def centre_of_mass(self, r):
         return (self.node_mass[:, None] * r).sum(0) / self.node_mass.sum()
 
-    def set_configuration(self, Lam, r):
+    def set_configuration(self, Lam, r, rest=False):
         """Start from (Lam, r), moving rigidly with rod.initial velocity and angular velocity about its
-        centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``)."""
+        centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``), or
+        at rest (``rest=True``: a static equilibrium)."""
         v = self.velocity + np.cross(self.spin, r - self.centre_of_mass(r))
         omega = np.einsum("nji,j->ni", Lam, self.spin)  # body angular velocity Lambda^T Omega
+        if rest:
+            v, omega = np.zeros_like(v), np.zeros_like(omega)
         self.Lam0, self.r0 = Lam, r
         self.v0, self.omega0 = v, omega
         self.p0 = self.node_mass[:, None] * v
@@ -503,13 +504,13 @@ def banded_jacobian(func, z, mask, ds, rel_step=1e-6):
     return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
-def _pack(Lam, r, origin=None):
-    """State vector q = (positions relative to the origin, frames, origin)."""
+def pack_level(Lam, r, origin=None):
+    """The rod's part of a level vector q: (positions relative to the origin, frames, origin)."""
     return np.concatenate([r.ravel(), Lam.ravel(), np.zeros(3) if origin is None else origin])
 
 
-def _unpack(q, N):
-    """(Lambda, r relative to the origin, origin) from a state vector."""
+def unpack_level(q, N):
+    """(Lambda, r relative to the origin, origin) from the rod's part of a level vector."""
     n3 = 3 * (N + 1)
     return q[n3:12 * (N + 1)].reshape(N + 1, 3, 3), q[:n3].reshape(N + 1, 3), q[12 * (N + 1):]
 
@@ -518,172 +519,8 @@ def _unpack(q, N):
 ORIGIN_GRID = 2.0 ** -20
 
 
-class RodSimulation:
-    """Public step API for the rod, with the same interface as :class:`varint.stepper.Simulation`."""
-
-    def __init__(self, model, h=None, tol=None, max_iter=None, state=None):
-        tcfg = model.scene.time
-        self.model = model
-        self.h = float(h if h is not None else tcfg.step)
-        self.tol = tol if tol is not None else tcfg.newton_tol
-        self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
-        N = model.N
-        # A free rod can travel far from the origin; positions are then kept relative to a floating
-        # origin (moved with node 0 each step, exactly, on a binary grid) so that strains and forces
-        # are computed from O(L) numbers: with absolute coordinates their round-off grows like eps |r|
-        # and a rod drifting 3.7 km lost its angular momentum to 1e-8 (docs/validation.md).
-        self.floating_origin = model.free
-        if state is not None and len(state.q) == 12 * (N + 1):  # a checkpoint written before the origin existed
-            state = State(state.n, state.t, np.concatenate([state.q, np.zeros(3)]), state.p, state.lam, state.v,
-                          state.q_prev)
-        if state is None:
-            q = _pack(model.Lam0, model.r0)
-            p = np.concatenate([model.p0.ravel(), model.Pi0.ravel()])
-            # predictor data: the last step's displacement in the body frame it started from, and xi
-            v = np.concatenate([np.einsum("nji,nj->ni", model.Lam0, self.h * model.v0).ravel(),
-                                (self.h * model.omega0).ravel()])
-            state = State(0, 0.0, q, p, np.empty(0), v)
-        self.state = state
-        self.stats = StepStats()
-        self._factor = None
-        scale = np.ones((N + 1, 6))
-        scale[:, :3] = model.ds
-        self.scale = scale[model.mask]
-
-    def invalidate_jacobian(self):
-        self._factor = None
-
-    # -- residual ------------------------------------------------------------------
-
-    # Unknowns of a step: per node the displacement in its level-n body frame, b = Lambda_n^T (r_{n+1} - r_n),
-    # and xi.  In body coordinates the Jacobian does not rotate with the rod, so it can be reused while
-    # the rod tumbles; the translational residual rows are rotated to the same frame.
-
-    def _split(self, z, Lam_n, r_n):
-        m = self.model
-        u = np.zeros((m.N + 1, 6))
-        u[m.mask] = z
-        return r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3]), u[:, 3:]
-
-    def residual(self, z, Lam_n, r_n, pi_n):
-        """pi_n + D1 L_d + f^- on the active components (pi_n given as (N+1, 6): p, Pi)."""
-        m = self.model
-        r_1, xi = self._split(z, Lam_n, r_n)
-        R = pi_n + m.derivative(self.h, Lam_n, r_n, xi, r_1, level=0) + m.discrete_forces(self.h, Lam_n)
-        R[:, :3] = np.einsum("nji,nj->ni", Lam_n, R[:, :3])
-        return R[m.mask]
-
-    def jacobian(self, z, Lam_n, r_n, pi_n):
-        """Exact Jacobian of the residual, assembled from the element blocks (block tridiagonal in nodes)."""
-        r_1, xi = self._split(z, Lam_n, r_n)
-        return self.model.step_jacobian(self.h, Lam_n, r_n, xi, r_1)
-
-    def jacobian_fd(self, z, Lam_n, r_n, pi_n):
-        """Colour-grouped central differences of the residual (the 0.1 Jacobian; kept for comparison)."""
-        m = self.model
-
-        def full(zz):
-            R = np.zeros((m.N + 1, 6))
-            R[m.mask] = self.residual(zz, Lam_n, r_n, pi_n)
-            return R
-
-        return banded_jacobian(full, z, m.mask, m.ds)
-
-    def step(self):
-        m, st = self.model, self.state
-        N = m.N
-        Lam_n, r_n, origin = _unpack(st.q, N)
-        pi_n = st.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
-        guess = st.v.reshape(2, N + 1, 3)
-        # the last step's body-frame displacement and xi: exact for a rigid rotation
-        u0 = np.concatenate([guess[0], guess[1]], axis=1)
-        z0 = u0[m.mask]
-        F = lambda z: self.residual(z, Lam_n, r_n, pi_n)  # noqa: E731
-        Jf = lambda z: self.jacobian(z, Lam_n, r_n, pi_n)  # noqa: E731
-        # chord iterations are cheaper than a Jacobian and its factorisation: tolerate slow ones
-        res = newton(F, Jf, z0, self.scale, self.tol, max(self.max_iter, 40), self._factor,
-                     rate_refresh=RATE_REFRESH_ROD, chord_iterations=30, polish=POLISH_ROD)
-        if not res.converged:
-            # a poor extrapolation (e.g. stiff modes that the midpoint rule flips every step): retry with a
-            # damped full Newton from the extrapolation, then from rest
-            s = self.stats
-            s.fallbacks = getattr(s, "fallbacks", 0) + 1
-            z_rest = np.zeros_like(z0)
-            res2 = newton_damped(F, Jf, z0, self.scale, self.tol, 4 * self.max_iter)
-            if not res2.converged:
-                res2 = newton_damped(F, Jf, z_rest, self.scale, self.tol, 4 * self.max_iter)
-            res2.n_residual += res.n_residual
-            res2.n_jacobian += res.n_jacobian
-            res2.iterations += res.iterations
-            res = res2
-            self._factor = None
-        if not res.converged:
-            self._factor = None
-            raise SolverError(
-                f"Newton failed at step {st.n + 1} (t = {st.t + self.h:.6g} s): {res.message}; scaled update "
-                f"{res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; try a smaller time.step",
-                step=st.n + 1, time=st.t + self.h, residual=res.error, rate=res.rate)
-        if res.message != "damped Newton":
-            self._factor = res.factor
-        r_1, xi = self._split(res.z, Lam_n, r_n)
-        turn = np.linalg.norm(xi, axis=1)
-        if np.max(turn) > XI_MAX:
-            # Newton found a solution whose frames turn by more than 90 degrees in one step: either the
-            # step cannot resolve the rotation or the iteration landed on a spurious root (energy off
-            # by O(1) in tests).  Neither is a result to keep.
-            j = int(np.argmax(turn))
-            deg = math.degrees(2.0 * math.atan(0.5 * turn[j]))
-            self._factor = None
-            raise SolverError(f"step {st.n + 1} (t = {st.t + self.h:.6g} s): node {j} turns by {deg:.0f} degrees in one "
-                              "step (more than 90); reduce time.step", step=st.n + 1, time=st.t + self.h)
-        Lam_1 = reorthonormalize(Lam_n @ cay(xi))
-        D2 = m.derivative(self.h, Lam_n, r_n, xi, r_1, level=1) + m.discrete_forces(self.h, Lam_1)
-        p1 = np.concatenate([D2[:, :3].ravel(), D2[:, 3:].ravel()])
-        v = np.concatenate([np.einsum("nji,nj->ni", Lam_n, r_1 - r_n).ravel(), xi.ravel()])
-        if self.floating_origin:
-            shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
-            r_1, origin = r_1 - shift, origin + shift
-        # (no q_prev: the rod's energy monitor is the level energy, which needs no previous level)
-        self.state = State(st.n + 1, (st.n + 1) * self.h, _pack(Lam_1, r_1, origin), p1, np.empty(0), v)
-        s = self.stats
-        s.iterations, s.n_residual, s.n_jacobian = res.iterations, res.n_residual, res.n_jacobian
-        s.total_iterations += res.iterations
-        s.total_jacobians += res.n_jacobian
-        return self.state
-
-    # -- monitors and fields -------------------------------------------------------------
-
-    def monitors(self):
-        m, st = self.model, self.state
-        N = m.N
-        Lam, r, origin = _unpack(st.q, N)
-        # supported components carry reaction impulses in D2 L_d, not momentum: leave them out
-        p = st.p[: 3 * (N + 1)].reshape(N + 1, 3) * m.mask[:, :3]
-        Pi = st.p[3 * (N + 1):].reshape(N + 1, 3) * m.mask[:, 3:]
-        pot = m.level_energy(Lam, r, p, Pi, origin)
-        out = {"kinetic_energy": pot.pop("kinetic")}
-        for k, v in pot.items():
-            out[f"energy_{k}"] = v
-        out["energy"] = out["kinetic_energy"] + sum(pot.values())
-        out["mass"] = float(np.sum(m.node_mass))
-        out["linear_momentum"] = p.sum(0)
-        # about the (fixed) origin: origin x P + sum (r - origin) x p + Lambda Pi, each part from O(L) numbers
-        spin = np.einsum("nij,nj->i", Lam, Pi)
-        out["angular_momentum"] = np.cross(origin, p.sum(0)) + np.cross(r, p).sum(0) + spin
-        # about the centre of mass: the well-conditioned one for a rod far from the origin (there the
-        # difference angular_momentum - r_c x P cancels large numbers)
-        out["angular_momentum_cm"] = np.cross(r - m.centre_of_mass(r), p).sum(0) + spin
-        out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
-        out["newton_iterations"] = self.stats.iterations
-        return out
-
-    def fields(self):
-        Lam, r, origin = _unpack(self.state.q, self.model.N)
-        return {"rod/r": r + origin, "rod/Lambda": Lam.copy()}
-
-
 # ---------------------------------------------------------------------------
-# numba kernel of RodModel.lagrangian_pieces (complex arithmetic, for the complex-step derivatives)
+# numba kernel of RodPart.lagrangian_pieces (complex arithmetic, for the complex-step derivatives)
 
 
 @njit(cache=True, inline="always")
@@ -754,7 +591,7 @@ def _k_accumulate(elem, node, plan_colour, plan_dir, inv_eps, out):
 
 @njit(cache=True)
 def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd, g, force, paper, elem, node):
-    """elem[b, e], node[b, j] of L_d for every perturbation b (see RodModel.lagrangian_pieces)."""
+    """elem[b, e], node[b, j] of L_d for every perturbation b (see RodPart.lagrangian_pieces)."""
     B = sig.shape[0]
     N = Lam_n.shape[0] - 1
     C = np.empty((3, 3), dtype=np.complex128)
@@ -988,7 +825,7 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
     """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
 
     u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
-    frame of their node (as in :meth:`RodSimulation.residual`).  By complex step of the analytic
+    frame of their node (as the stepper's residual rows: varint.step_terms.RodElements).  By complex step of the analytic
     gradient: exact to round-off.  Columns of unknowns off the ``mask`` (N+1, 6) are left zero.
     """
     N = Lam_n.shape[0] - 1

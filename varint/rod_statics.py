@@ -22,8 +22,14 @@ __all__ = ["static_equilibrium", "rod_modes", "rotating_frame_kinetics", "check_
            "turn_to_nearest_principal_axis"]
 
 
+def _rod(model):
+    """The rod part of a model (its r, Lambda blocks); a part is accepted as it is."""
+    return model.rod if hasattr(model, "rod") else model
+
+
 def _potential_gradient(model, Lam, r, load_factor=1.0):
     """d(-U)/d(dr, sigma) of the potential at a configuration (N+1, 6), including the tip torque."""
+    model = _rod(model)
     xi = np.zeros_like(r)
     # with r_1 = r_n and xi = 0 the step Lagrangian is -h U(config): take h = 1 and sum both levels
     g = (model.derivative(1.0, Lam, r, xi, r, level=0, load_factor=load_factor)
@@ -37,6 +43,7 @@ def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
     With ``spin`` the centrifugal force and torque of a steady rotation about the axis through
     ``centre`` are added: the force whose zero is a steady rotation (docs/theory.md §9).
     """
+    model = _rod(model)
     mask = model.mask
 
     def f(z):
@@ -51,12 +58,13 @@ def _force_map(model, Lam, r, load_factor=1.0, spin=None, centre=None):
 
 def _force_jacobian(model, Lam, r, load_factor=1.0, spin=None, centre=None):
     """Exact derivative (nz, nz) of :func:`_force_map` at z = 0: the element blocks of the discrete
-    potential (complex step of the analytic element gradient, ``RodModel.potential_hessian``) and,
+    potential (complex step of the analytic element gradient, ``RodPart.potential_hessian``) and,
     with ``spin``, the node-local derivative of the centrifugal force and torque b of
     :func:`rotating_frame_kinetics` under Lambda cay(sigma), r + dr:
 
         d b_r / d dr = m Om^T Om,      d b_sigma / d sigma = hat(I Ob) hat(Ob) - hat(Ob) I hat(Ob),   Ob = Lambda^T Om.
     """
+    model = _rod(model)
     H = model.potential_hessian(Lam, r, load_factor)
     if spin is None:
         return H
@@ -83,6 +91,7 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     spinning rod keeps neutral directions (sliding along and turning about the axis); a tiny
     Levenberg shift of the Hessian (1e-10 of its diagonal) leaves them at rest.
     """
+    model = _rod(model)
     import scipy.sparse.linalg as spla
 
     mask = model.mask
@@ -150,6 +159,7 @@ def turn_to_nearest_principal_axis(model, Lam, r, spin):
     makes the result the steady rotation closest to the given shape.  Among degenerate principal
     axes (a straight rod's transverse ones) the one nearest to the spin is taken.
     """
+    model = _rod(model)
     m = model.node_mass
     rc = model.centre_of_mass(r)
     rho = r - rc
@@ -192,6 +202,7 @@ def rotating_frame_kinetics(model, Omega, Lam, r, centre=None):
     Returns per-node blocks ``b`` (N+1, 6), ``C`` and ``H`` (N+1, 6, 6); M is :func:`lumped_mass`.
     ``centre``: a point of the spin axis (default: the centre of mass of ``r``).
     """
+    model = _rod(model)
     m, inertia = model.node_mass, model.node_inertia
     Omega = np.asarray(Omega, dtype=float)
     rc = model.centre_of_mass(r) if centre is None else np.asarray(centre, dtype=float)
@@ -229,6 +240,7 @@ DENSE_SPREAD_LIMIT = 1.0
 
 def _spectral_spread(model, K, M):
     """eps times a Gershgorin bound on the largest w^2 over the bending scale EI / (rho A L^4)."""
+    model = _rod(model)
     sec = model.section
     bending = sec.EI / (sec.rhoA * model.L ** 4)
     top = float(np.max(np.asarray(abs(K).sum(axis=1)).ravel() / M))
@@ -248,6 +260,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     round-off would reach the lowest frequencies: :data:`DENSE_SPREAD_LIMIT`).
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
+    model = _rod(model)
     from .analysis import gyroscopic_modes_of, modes_of, sparse_gyroscopic_modes_of, sparse_modes_of
 
     mask = model.mask
@@ -292,6 +305,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
 
 def check_rotating_base(model, Omega):
     """A steady rotation must be one the time-domain rod can perform: one-line error otherwise."""
+    model = _rod(model)
     if model.paper_measure:
         raise SolverError("modes: about a spinning state only with rod.measure = \"reference\" (the paper's measure "
                           "makes the mass depend on the stretch)")
@@ -310,4 +324,5 @@ def check_rotating_base(model, Omega):
 
 def lumped_mass(model):
     """Diagonal of the kinetic metric per node and direction (rho A w_j for dr, I w_j for sigma), (N+1, 6)."""
+    model = _rod(model)
     return np.concatenate([np.repeat(model.node_mass[:, None], 3, 1), model.node_inertia], axis=1)

@@ -17,10 +17,8 @@ __all__ = ["run_scene", "default_output", "check_output", "make_simulation"]
 
 
 def make_simulation(model):
-    """The stepper of a model: the rod's Lie-group scheme or the tube's."""
-    from .rod import RodModel, RodSimulation
-
-    return RodSimulation(model) if isinstance(model, RodModel) else Simulation(model)
+    """The stepper of a model (one for every model: :class:`varint.stepper.Simulation`)."""
+    return Simulation(model)
 
 log = logging.getLogger(__name__)
 

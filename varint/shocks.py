@@ -773,7 +773,7 @@ def make_tube(R0, beta1, beta2, a, p_ext, rho, p, gamma):
 
 def tube_of_scene(scene):
     """The tube of a scene: [tube] radius, a linear [wall] (dynamic or quasistatic), an ideal gas at rest ahead."""
-    from .model import wall_parameters
+    from .tube import wall_parameters
 
     src = scene.path or "scene"
     if scene.wall is None or scene.wall.law != "linear":

@@ -1,148 +1,193 @@
-"""The discrete Lagrangian of one time step, its stationarity conditions, and the stepper.
+"""One stepper for every model: the position-momentum discrete Euler-Lagrange equations of L_d.
 
-For a step n -> n+1 with q the inertial unknowns and lam the algebraic ones
-(see :mod:`varint.model`), v = (q1 - q0)/h and constant diagonal mass M:
+For a step n -> n+1 of the model's blocks (:mod:`varint.model`), with L_d the sum of the model's step
+terms (:mod:`varint.step_terms`, kinetic ones included) and f^± the Lagrange-d'Alembert forces
+(:mod:`varint.forces`), the step solves (docs/theory.md §4, §9)
 
-midpoint
-    L_d(q0, q1, lam) = h [ 1/2 v.M.v - U(config((q0 + q1)/2, lam)) ]
-trapezoidal (no algebraic unknowns)
-    L_d(q0, q1) = h [ 1/2 v.M.v - 1/2 U(config(q0)) - 1/2 U(config(q1)) ]
+    p_n + D1 L_d(q_n, q_{n+1}, lam) + f^-_n = 0,      D_lam L_d(q_n, q_{n+1}, lam) = 0,
 
-The step solves, in position-momentum form (docs/theory.md §4),
+for the step unknowns z (q_{n+1} in each block's chart, and lam_{n+1/2}) by Newton, and sets
+p_{n+1} = D2 L_d + f^+_n.  These residuals *are* components of the gradient of the discrete action
+sum_n L_d; the test suite checks that against finite differences of :meth:`Step.discrete_lagrangian`.
+The Newton Jacobian is the sum of the terms' exact blocks.
 
-    p_n + D1 L_d(q_n, q_{n+1}, lam) = 0,      D_lam L_d(q_n, q_{n+1}, lam) = 0,
-
-for (q_{n+1}, lam_{n+1/2}) and sets p_{n+1} = D2 L_d.  These residuals *are*
-components of the gradient of the discrete action sum_n L_d; the test suite
-checks that against finite differences of :meth:`Scheme.discrete_lagrangian`.
+Charts (the model's layout): the tube's labels, radii and multipliers are vectors (z holds their new
+values, as displacements from the reference lattice); the rod's positions are moved by the body-frame
+displacement b (r_{n+1} = r_n + Lambda_n b) and its frames by the Cayley retraction
+Lambda_{n+1} = Lambda_n cay(xi).  The rod's translational residual rows are rotated into the same
+level-n body frames, so the Jacobian does not rotate with a tumbling rod and can be reused.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from .errors import SolverError
-from .newton import newton
+from .lie import cay, cay_inv
+from .newton import RATE_REFRESH, newton, newton_damped
+from .rod import ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, pack_level, reorthonormalize, unpack_level
+from .step_terms import Derivatives, StepPoint
 
-__all__ = ["Midpoint", "Trapezoidal", "make_scheme", "State", "Simulation"]
+__all__ = ["Step", "make_scheme", "State", "StepStats", "Simulation"]
 
 log = logging.getLogger(__name__)
 
 
-class Scheme:
-    """Shared pieces of the two quadratures."""
+class Step:
+    """The discrete Lagrangian of one step of a model and its stationarity conditions.
 
-    name = "scheme"
-    order = None  #: the declared order of accuracy in h; each scheme sets it
+    ``scheme`` names the quadrature of the potential ("midpoint", or "trapezoidal" for a tube without
+    algebraic unknowns); ``order`` is the global order in h it declares (asserted by
+    tests/test_convergence.py).
+    """
 
-    def __init__(self, model, h):
+    def __init__(self, model, h, scheme=None):
         self.model = model
         self.h = float(h)
-        nq, nz = model.nq, model.nz
-        self.Bq = model.B[:, :nq]
-        self.Bl = model.B[:, nq:]
-        self.Mdiag = model.mass
+        self.name = scheme or model.scheme
+        self.terms = model.step_terms(self.name)
+        self.order = min(getattr(t, "order", 2) for t in self.terms)
 
-    def _cfg(self, qpart, lam):
-        return self.model.config(np.concatenate([qpart, lam]))
+    # -- the two levels -------------------------------------------------------------------
 
-    def kinetic(self, q0, q1):
-        v = (q1 - q0) / self.h
-        return 0.5 * float(np.dot(self.Mdiag * v, v))
+    def point(self, q0, z):
+        """The :class:`StepPoint` of level vector ``q0`` and step unknowns ``z``."""
+        m = self.model
+        pt = StepPoint(self.h)
+        if m.tube is not None:
+            t = m.tube
+            zt = z[m.tube_z]
+            pt.q0, pt.q1, pt.lam = q0[m.tube_q], zt[:t.nq], zt[t.nq:]
+        if m.rod is not None:
+            rod = m.rod
+            Lam_n, r_n, _ = unpack_level(q0[m.rod_q], rod.N)
+            u = np.zeros((rod.N + 1, 6))
+            u[rod.mask] = z[m.rod_z]
+            pt.Lam_n, pt.r_n = Lam_n, r_n
+            pt.r_1 = r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3])
+            pt.xi = u[:, 3:]
+        return pt
 
+    def unknowns(self, q0, q1, lam=None):
+        """The step unknowns z that take level ``q0`` to level ``q1`` (inverse of :meth:`retract`)."""
+        m = self.model
+        parts = []
+        if m.tube is not None:
+            parts += [q1[m.tube_q], np.empty(0) if lam is None else lam]
+        if m.rod is not None:
+            rod = m.rod
+            L0, r0, o0 = unpack_level(q0[m.rod_q], rod.N)
+            L1, r1, o1 = unpack_level(q1[m.rod_q], rod.N)
+            u = np.concatenate([np.einsum("nji,nj->ni", L0, (r1 + o1) - (r0 + o0)),
+                                cay_inv(np.swapaxes(L0, 1, 2) @ L1)], axis=1)
+            parts.append(u[rod.mask])
+        return np.concatenate(parts) if parts else np.empty(0)
 
-class Midpoint(Scheme):
-    name = "midpoint"
-    order = 2  #: global order in h (symmetric one-stage quadrature); asserted by tests/test_convergence.py
+    def retract(self, q0, z, floating_origin=False):
+        """The level vector q_{n+1} reached from ``q0`` by the step unknowns ``z``.
 
-    def discrete_lagrangian(self, q0, q1, lam):
-        cfg = self._cfg(0.5 * (q0 + q1), lam)
-        return self.h * (self.kinetic(q0, q1) - self.model.potential(cfg))
+        Frames are re-orthonormalised (one polar Newton step: round-off, :func:`varint.rod.reorthonormalize`);
+        with ``floating_origin`` the rod's origin follows node 0 on a binary grid (exact moves).
+        """
+        m = self.model
+        parts = []
+        if m.tube is not None:
+            parts.append(z[m.tube_z][:m.tube.nq])
+        if m.rod is not None:
+            pt = self.point(q0, z)
+            _, _, origin = unpack_level(q0[m.rod_q], m.rod.N)
+            Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
+            r_1 = pt.r_1
+            if floating_origin:
+                shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
+                r_1, origin = r_1 - shift, origin + shift
+            parts.append(pack_level(Lam_1, r_1, origin))
+        return np.concatenate(parts) if parts else np.empty(0)
 
-    def _grad(self, q0, z):
-        nq = self.model.nq
-        q1, lam = z[:nq], z[nq:]
-        cfg = self._cfg(0.5 * (q0 + q1), lam)
-        return q1, lam, cfg, self.model.gradient(cfg)
-
-    def residual(self, q0, p0, z):
-        """[p_n + D1 L_d ; D_lam L_d] at z = concat(q_{n+1}, lam)."""
-        q1, lam, cfg, g = self._grad(q0, z)
-        h = self.h
-        rq = p0 - self.Mdiag * (q1 - q0) / h - 0.5 * h * (self.Bq.T @ g)
-        rl = -h * (self.Bl.T @ g)
-        return np.concatenate([rq, rl])
-
-    def jacobian(self, q0, z):
-        nq = self.model.nq
-        q1, lam = z[:nq], z[nq:]
-        cfg = self._cfg(0.5 * (q0 + q1), lam)
-        H = self.model.hessian(cfg)
-        C = sp.hstack([0.5 * self.Bq, self.Bl]).tocsr()
-        mass = np.concatenate([self.Mdiag / self.h, np.zeros(self.model.nlam)])
-        return (-sp.diags(mass) - self.h * (C.T @ H @ C)).tocsc()
-
-    def momentum_plus(self, q0, z):
-        """p_{n+1} = D2 L_d(q_n, q_{n+1}, lam)."""
-        q1, lam, cfg, g = self._grad(q0, z)
-        return self.Mdiag * (q1 - q0) / self.h - 0.5 * self.h * (self.Bq.T @ g)
-
-    def step_energies(self, q0, z):
-        """Energy of the step: kinetic of v_{n+1/2} and each potential at the midpoint."""
-        nq = self.model.nq
-        cfg = self._cfg(0.5 * (q0 + z[:nq]), z[nq:])
-        return self.model.energies(cfg)
-
-    def explicit(self):
-        return False
-
-
-class Trapezoidal(Scheme):
-    name = "trapezoidal"
-    order = 2  #: global order in h (Stormer-Verlet); asserted by tests/test_convergence.py
-
-    def __init__(self, model, h):
-        super().__init__(model, h)
-        if model.nlam:
-            raise ValueError("the trapezoidal scheme needs every unknown to carry inertia")
+    # -- L_d and its derivatives ------------------------------------------------------------
 
     def discrete_lagrangian(self, q0, q1, lam=None):
-        e = np.empty(0)
-        U0 = self.model.potential(self._cfg(q0, e))
-        U1 = self.model.potential(self._cfg(q1, e))
-        return self.h * (self.kinetic(q0, q1) - 0.5 * (U0 + U1))
+        """L_d(q0, q1, lam) = sum of the step terms' values."""
+        pt = self.point(q0, self.unknowns(q0, q1, lam))
+        return sum(t.value(pt) for t in self.terms)
 
-    def _force(self, q):
-        return self.Bq.T @ self.model.gradient(self._cfg(q, np.empty(0)))
+    def _derivatives(self, pt, level):
+        d = Derivatives(self.model)
+        for t in self.terms:
+            t.add(pt, d, level)
+        return d
+
+    def _forces(self, Lam):
+        rod = self.model.rod
+        f = np.zeros((rod.N + 1, 6))
+        for force in self.model.forces:
+            f += force.discrete(self.h, Lam)
+        return f
 
     def residual(self, q0, p0, z):
-        return p0 - self.Mdiag * (z - q0) / self.h - 0.5 * self.h * self._force(q0)
+        """[p_n + D1 L_d + f^- ; D_lam L_d] at z (rod translational rows in the level-n body frames)."""
+        m = self.model
+        pt = self.point(q0, z)
+        d = self._derivatives(pt, 0)
+        parts = []
+        if m.tube is not None:
+            parts += [p0[m.tube_p] + d.tube_q, d.tube_lam]
+        if m.rod is not None:
+            rod = m.rod
+            pi_n = p0[m.rod_p].reshape(2, rod.N + 1, 3).transpose(1, 0, 2).reshape(rod.N + 1, 6)
+            R = pi_n + d.rod + self._forces(pt.Lam_n)
+            R[:, :3] = np.einsum("nji,nj->ni", pt.Lam_n, R[:, :3])
+            parts.append(R[rod.mask])
+        return np.concatenate(parts) if parts else np.empty(0)
 
     def jacobian(self, q0, z):
-        return sp.diags(-self.Mdiag / self.h).tocsc()
+        """Exact d(residual)/dz: the sum of the terms' blocks (the forces' f^- do not depend on z)."""
+        pt = self.point(q0, z)
+        J = None
+        for t in self.terms:
+            b = t.jacobian(pt)
+            J = b if J is None else J + b
+        return sp.csc_matrix(J) if J is not None else sp.csc_matrix((0, 0))
 
     def momentum_plus(self, q0, z):
-        return self.Mdiag * (z - q0) / self.h - 0.5 * self.h * self._force(z)
+        """p_{n+1} = D2 L_d + f^+ (the rod's on every node)."""
+        m = self.model
+        pt = self.point(q0, z)
+        d = self._derivatives(pt, 1)
+        parts = []
+        if m.tube is not None:
+            parts.append(d.tube_q)
+        if m.rod is not None:
+            D2 = d.rod + self._forces(reorthonormalize(pt.Lam_n @ cay(pt.xi)))
+            parts += [D2[:, :3].ravel(), D2[:, 3:].ravel()]
+        return np.concatenate(parts) if parts else np.empty(0)
+
+    def step_energies(self, q0, z):
+        """The tube's potential energies at the step's midpoint (its energy monitor with algebraic unknowns)."""
+        pt = self.point(q0, z)
+        term = next(t for t in self.terms if t.name == "tube_potential")
+        return term.energies(pt)
 
     def explicit(self):
-        # The residual is affine in q_{n+1} with the constant diagonal Jacobian -M/h:
-        # one solve is exact (Stormer-Verlet).  No Newton iteration is needed.
-        return True
+        """True when the residual is affine in z with a constant diagonal Jacobian (Stormer-Verlet on the
+        tube): one linear solve is then the exact step, no Newton iteration is needed."""
+        return all(t.constant_diagonal_jacobian() for t in self.terms)
 
 
 def make_scheme(model, h, name=None):
-    name = name or model.scheme
-    return {"midpoint": Midpoint, "trapezoidal": Trapezoidal}[name](model, h)
+    """The :class:`Step` of ``model`` with time step ``h`` and quadrature ``name`` (default: the scene's)."""
+    return Step(model, h, name)
 
 
 @dataclass
 class State:
     """Everything a restart needs: level n, (q_n, p_n), the last half-level algebraic unknowns
-    and the last step velocity (used only by the predictor)."""
+    and the last step's predictor data (layouts: :mod:`varint.model`)."""
 
     n: int
     t: float
@@ -164,6 +209,7 @@ class StepStats:
     n_jacobian: int = 0
     total_iterations: int = 0
     total_jacobians: int = 0
+    fallbacks: int = 0  #: steps that needed the damped-Newton fallback
 
 
 class Simulation:
@@ -176,28 +222,53 @@ class Simulation:
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
-        self.state = state if state is not None else State(0, 0.0, model.q_init.copy(), model.p_init.copy(),
-                                                           model.lam_init.copy(), model.v_init.copy())
+        if state is None:
+            state = State(0, 0.0, *model.initial_state(self.h))
+        else:
+            state.q = model.upgrade_level(state.q)
+        self.state = state
         self.stats = StepStats()
         self._factor = None
-        self.scale = self._scales()
-        #: the unknowns are displacements from c0: the residual's round-off is relative to |c0 + z|
-        self.offset = np.asarray(abs(model.B).T @ np.abs(model.c0)).ravel()
+        self.scale, self.offset = self._scales()
+        # A free rod can travel far from the origin; positions are then kept relative to a floating
+        # origin (moved with node 0 each step, exactly, on a binary grid) so that strains and forces
+        # are computed from O(L) numbers: with absolute coordinates their round-off grows like eps |r|
+        # and a rod drifting 3.7 km lost its angular momentum to 1e-8 (docs/validation.md).
+        self.floating_origin = model.rod is not None and model.rod.free
 
     def _scales(self):
+        """Scale of each unknown (Newton's error norm) and the size of the quantity it displaces (the
+        round-off reference: the unknowns are displacements from the reference lattice)."""
         m = self.model
         sc = np.ones(m.nz)
-        for name, sl in m.layout.items():
-            if name == "s":
-                sc[sl] = m.L / m.M
-            elif name == "R":
-                sc[sl] = m.R0
-            elif name == "mu":
-                # the multiplier is a pressure; its round-off is set by the wall's stiffness
-                w = m.wall
-                p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * m.R0 / (2 * np.pi)
-                sc[sl] = max(abs(m.scene.fluid.pressure), p_wall)
-        return sc
+        off = np.zeros(m.nz)
+        t = m.tube
+        if t is not None:
+            for name, sl in t.layout.items():
+                if name == "s":
+                    sc[sl] = t.L / t.M
+                elif name == "R":
+                    sc[sl] = t.R0
+                elif name == "mu":
+                    # the multiplier is a pressure; its round-off is set by the wall's stiffness
+                    w = t.wall
+                    p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * t.R0 / (2 * np.pi)
+                    sc[sl] = max(abs(m.scene.fluid.pressure), p_wall)
+            off[m.tube_z] = np.asarray(abs(t.B).T @ np.abs(t.c0)).ravel()
+        if m.rod is not None:
+            rs = np.ones((m.N + 1, 6))
+            rs[:, :3] = m.ds
+            sc[m.rod_z] = rs[m.rod.mask]
+        return sc, off
+
+    def _newton_options(self):
+        """Newton's settings follow from the blocks present: frames make chord iterations cheap next to a
+        Jacobian and need the momentum residual polished to round-off (varint.rod)."""
+        if self.model.has_frames:
+            return dict(max_iter=max(self.max_iter, 40), rate_refresh=RATE_REFRESH_ROD, chord_iterations=30,
+                        polish=POLISH_ROD, damped_fallback=True)
+        return dict(max_iter=self.max_iter, rate_refresh=RATE_REFRESH, chord_iterations=5, polish=0,
+                    damped_fallback=False)
 
     def invalidate_jacobian(self):
         """Forget the reused factorisation (done at checkpoints so a restart repeats the same arithmetic)."""
@@ -211,57 +282,130 @@ class Simulation:
         return SolverError(f"{self._where(n)}: {text} {what}: the step is too large for this motion; "
                            "try a smaller time.step", step=n, time=n * self.h)
 
+    def predictor(self):
+        """z extrapolated from the last step: tube q_n + h v, the last lam; the rod's last b and xi
+        (exact for a rigid rotation)."""
+        m, st = self.model, self.state
+        parts = []
+        if m.tube is not None:
+            parts += [st.q[m.tube_q] + self.h * st.v[m.tube_p], st.lam]
+        if m.rod is not None:
+            g = st.v[m.rod_p].reshape(2, m.N + 1, 3)
+            parts.append(np.concatenate([g[0], g[1]], axis=1)[m.rod.mask])
+        return np.concatenate(parts) if parts else np.empty(0)
+
+    def _label_problem(self, q0, z, midpoint=True):
+        """A label that folds the lattice or leaves the tube at the step's evaluation point, or None."""
+        t = self.model.tube
+        if t is None or not t.has_fluid:
+            return None
+        pt = self.scheme.point(q0, z)
+        q = 0.5 * (pt.q0 + pt.q1) if midpoint and self.scheme.name == "midpoint" else pt.q1
+        return t.label_problem(t.config(np.concatenate([q, pt.lam])))
+
+    def _solve(self, st, n1):
+        sch = self.scheme
+        z0 = self.predictor()
+        if sch.explicit():
+            # affine residual, constant diagonal Jacobian: one solve is exact (Stormer-Verlet)
+            F0 = sch.residual(st.q, st.p, z0)
+            return z0 - sch.jacobian(st.q, z0).diagonal() ** -1 * F0, 1, 1, 0
+        F = lambda z: sch.residual(st.q, st.p, z)  # noqa: E731
+        Jf = lambda z: sch.jacobian(st.q, z)  # noqa: E731
+        opt = self._newton_options()
+        res = newton(F, Jf, z0, self.scale, self.tol, opt["max_iter"], self._factor, rate_refresh=opt["rate_refresh"],
+                     chord_iterations=opt["chord_iterations"], polish=opt["polish"], offset=self.offset)
+        if not res.converged and opt["damped_fallback"]:
+            # a poor extrapolation (e.g. stiff modes that the midpoint rule flips every step): retry with a
+            # damped full Newton from the extrapolation, then from rest
+            self.stats.fallbacks += 1
+            res2 = newton_damped(F, Jf, z0, self.scale, self.tol, 4 * self.max_iter)
+            if not res2.converged:
+                res2 = newton_damped(F, Jf, np.zeros_like(z0), self.scale, self.tol, 4 * self.max_iter)
+            res2.n_residual += res.n_residual
+            res2.n_jacobian += res.n_jacobian
+            res2.iterations += res.iterations
+            res = res2
+            self._factor = None
+        if not res.converged:
+            self._factor = None
+            # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
+            problem = self._label_problem(st.q, res.z)
+            if problem is not None:
+                where = f"in Newton iterate {res.iterations}" if res.iterations else "in the predictor (last velocity extrapolated)"
+                raise self._folded(n1, problem, where)
+            raise SolverError(
+                f"Newton failed at {self._where(n1)}: {res.message}; "
+                f"scaled update {res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; "
+                "try a smaller time.step", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
+        if res.message != "damped Newton":
+            self._factor = res.factor
+        return res.z, res.iterations, res.n_residual, res.n_jacobian
+
     def step(self):
         st = self.state
         m = self.model
-        nq = m.nq
         n1 = st.n + 1
-        z0 = np.concatenate([st.q + self.h * st.v, st.lam])
-        sch = self.scheme
-        if sch.explicit():
-            z = st.q + self.h * (st.p - 0.5 * self.h * sch._force(st.q)) / sch.Mdiag
-            iters, nres, njac = 1, 1, 0
-        else:
-            res = newton(lambda z: sch.residual(st.q, st.p, z), lambda z: sch.jacobian(st.q, z), z0, self.scale,
-                         self.tol, self.max_iter, self._factor, offset=self.offset)
-            if not res.converged:
-                self._factor = None
-                # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
-                problem = m.label_problem(self._step_config(st.q, res.z))
-                if problem is not None:
-                    where = f"in Newton iterate {res.iterations}" if res.iterations else "in the predictor (last velocity extrapolated)"
-                    raise self._folded(n1, problem, where)
-                raise SolverError(
-                    f"Newton failed at {self._where(n1)}: {res.message}; "
-                    f"scaled update {res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; "
-                    "try a smaller time.step", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
-            self._factor = res.factor
-            z, iters, nres, njac = res.z, res.iterations, res.n_residual, res.n_jacobian
-        q1, lam = z[:nq], z[nq:]
-        problem = m.label_problem(m.config(np.concatenate([q1, lam])))
+        z, iters, nres, njac = self._solve(st, n1)
+        problem = self._label_problem(st.q, z, midpoint=False)
         if problem is not None:
             self._factor = None
             raise self._folded(n1, problem, "at the new time level")
-        p1 = sch.momentum_plus(st.q, z)
-        v = (q1 - st.q) / self.h
-        self.state = State(n1, n1 * self.h, q1.copy(), p1, lam.copy(), v, st.q.copy())
+        if m.rod is not None:
+            xi = self.scheme.point(st.q, z).xi
+            turn = np.linalg.norm(xi, axis=1)
+            if np.max(turn) > XI_MAX:
+                # Newton found a solution whose frames turn by more than 90 degrees in one step: either the
+                # step cannot resolve the rotation or the iteration landed on a spurious root (energy off
+                # by O(1) in tests).  Neither is a result to keep.
+                j = int(np.argmax(turn))
+                deg = math.degrees(2.0 * math.atan(0.5 * turn[j]))
+                self._factor = None
+                raise SolverError(f"{self._where(n1)}: node {j} turns by {deg:.0f} degrees in one "
+                                  "step (more than 90); reduce time.step", step=n1, time=n1 * self.h)
+        p1 = self.scheme.momentum_plus(st.q, z)
+        q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin)
+        v = self._step_velocity(st.q, z)
+        lam = z[m.tube_z][m.tube.nq:].copy() if m.tube is not None else np.empty(0)
+        self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = iters, nres, njac
         s.total_iterations += iters
         s.total_jacobians += njac
         return self.state
 
-    def _step_config(self, q0, z):
-        """The configuration the step's residual evaluates at z (the midpoint, or the new level)."""
-        nq = self.model.nq
-        if isinstance(self.scheme, Midpoint):
-            return self.model.config(np.concatenate([0.5 * (q0 + z[:nq]), z[nq:]]))
-        return self.model.config(z)
+    def _step_velocity(self, q0, z):
+        """The predictor's data of this step: tube (q1 - q0)/h; rod b and xi on every node."""
+        m = self.model
+        parts = []
+        if m.tube is not None:
+            parts.append((z[m.tube_z][:m.tube.nq] - q0[m.tube_q]) / self.h)
+        if m.rod is not None:
+            pt = self.scheme.point(q0, z)
+            parts += [np.einsum("nji,nj->ni", pt.Lam_n, pt.r_1 - pt.r_n).ravel(), pt.xi.ravel()]
+        return np.concatenate(parts) if parts else np.empty(0)
 
     # -- monitors -------------------------------------------------------------
 
     def monitors(self):
-        """Invariants and energies at the current level.
+        """Invariants and energies at the current level (each part's, summed where they add up)."""
+        parts = []
+        if self.model.tube is not None:
+            parts.append(self._tube_monitors())
+        if self.model.rod is not None:
+            parts.append(self._rod_monitors())
+        out = parts[0]
+        for extra in parts[1:]:
+            for k, v in extra.items():
+                if k in ("kinetic_energy", "energy", "mass", "linear_momentum", "angular_momentum"):
+                    out[k] = out[k] + v
+                elif k != "newton_iterations":
+                    out[k] = v
+        out["newton_iterations"] = self.stats.iterations
+        return out
+
+    def _tube_monitors(self):
+        """The tube's energies, mass, axial momentum, entropy and constraint.
 
         Energy: without algebraic unknowns, H(q_n, p_n) = 1/2 p M^-1 p + U(q_n) at the level (exactly
         conserved by the midpoint rule on linear problems, whatever h); with them (quasistatic wall,
@@ -269,16 +413,18 @@ class Simulation:
         their half-level unknowns have no value at a level.  Record 0: the initial data.
         """
         m, st = self.model, self.state
+        t = m.tube
+        q, p, v_st = st.q[m.tube_q], st.p[m.tube_p], st.v[m.tube_p]
         out = {}
-        if m.nlam == 0 or st.q_prev is None:
-            pot = m.energies(m.config(np.concatenate([st.q, st.lam])))
-            v = st.p / np.where(m.mass > 0, m.mass, 1.0) if st.q_prev is not None else st.v
+        if t.nlam == 0 or st.q_prev is None:
+            pot = t.energies(t.config(np.concatenate([q, st.lam])))
+            v = p / np.where(t.mass > 0, t.mass, 1.0) if st.q_prev is not None else v_st
         else:
-            pot = self.scheme.step_energies(st.q_prev, np.concatenate([st.q, st.lam]))
-            v = st.v
-        kin = 0.5 * m.mass * v * v
-        kf = float(np.sum(kin[m.layout["s"]])) if "s" in m.layout else 0.0
-        kw = float(np.sum(kin[m.layout["R"]])) if m.wall_dynamic else 0.0
+            pot = self.scheme.step_energies(st.q_prev, np.concatenate([q, st.lam, np.zeros(m.nz - m.tube_z.stop)]))
+            v = v_st
+        kin = 0.5 * t.mass * v * v
+        kf = float(np.sum(kin[t.layout["s"]])) if "s" in t.layout else 0.0
+        kw = float(np.sum(kin[t.layout["R"]])) if t.wall_dynamic else 0.0
         out["kinetic_energy"] = kf + kw
         out["energy_fluid_kinetic"] = kf
         out["energy_wall_kinetic"] = kw
@@ -287,41 +433,78 @@ class Simulation:
         out["energy"] = out["kinetic_energy"] + sum(pot.values())
         # the mass the state holds: density field times the parcel volumes of the configuration (for an
         # incompressible fluid at the step's midpoint, where its volume constraint is imposed)
-        out["mass"] = m.fluid_mass(self._mass_config()) if m.has_fluid else 0.0
+        out["mass"] = t.fluid_mass(self._mass_config()) if t.has_fluid else 0.0
         mom = np.zeros(3)
-        if "s" in m.layout:
-            mom[0] = float(np.sum(st.p[m.layout["s"]]))
+        if "s" in t.layout:
+            mom[0] = float(np.sum(p[t.layout["s"]]))
         out["linear_momentum"] = mom
         # every fluid label moves along the x axis through the origin: r x p = 0
         out["angular_momentum"] = np.zeros(3)
         out["newton_iterations"] = self.stats.iterations
-        if m.has_fluid:
-            out["entropy"] = float(np.sum(m.m * m.S))
-            if m.incompressible:
-                out["constraint_residual"] = float(np.max(np.abs(m.volumes(self._mass_config()) / m.V0 - 1.0)))
+        if t.has_fluid:
+            out["entropy"] = float(np.sum(t.m * t.S))
+            if t.incompressible:
+                out["constraint_residual"] = float(np.max(np.abs(t.volumes(self._mass_config()) / t.V0 - 1.0)))
         return out
 
     def _mass_config(self):
-        """The level's configuration, or the last step's midpoint for an incompressible fluid."""
+        """The tube's configuration at the level, or at the last step's midpoint for an incompressible fluid."""
         m, st = self.model, self.state
-        q = st.q if not m.incompressible or st.q_prev is None else 0.5 * (st.q + st.q_prev)
-        return m.config(np.concatenate([q, st.lam]))
+        t = m.tube
+        q = st.q[m.tube_q]
+        if t.incompressible and st.q_prev is not None:
+            q = 0.5 * (q + st.q_prev[m.tube_q])
+        return t.config(np.concatenate([q, st.lam]))
+
+    def _rod_monitors(self):
+        """The rod's level energy H(q_n, pi_n), momenta about the origin and the centre of mass, frames."""
+        m, st = self.model, self.state
+        rod = m.rod
+        N = rod.N
+        Lam, r, origin = unpack_level(st.q[m.rod_q], N)
+        pp = st.p[m.rod_p]
+        # supported components carry reaction impulses in D2 L_d, not momentum: leave them out
+        p = pp[: 3 * (N + 1)].reshape(N + 1, 3) * rod.mask[:, :3]
+        Pi = pp[3 * (N + 1):].reshape(N + 1, 3) * rod.mask[:, 3:]
+        pot = rod.level_energy(Lam, r, p, Pi, origin)
+        out = {"kinetic_energy": pot.pop("kinetic")}
+        for k, v in pot.items():
+            out[f"energy_{k}"] = v
+        out["energy"] = out["kinetic_energy"] + sum(pot.values())
+        out["mass"] = float(np.sum(rod.node_mass))
+        out["linear_momentum"] = p.sum(0)
+        # about the (fixed) origin: origin x P + sum (r - origin) x p + Lambda Pi, each part from O(L) numbers
+        spin = np.einsum("nij,nj->i", Lam, Pi)
+        out["angular_momentum"] = np.cross(origin, p.sum(0)) + np.cross(r, p).sum(0) + spin
+        # about the centre of mass: the well-conditioned one for a rod far from the origin (there the
+        # difference angular_momentum - r_c x P cancels large numbers)
+        out["angular_momentum_cm"] = np.cross(r - rod.centre_of_mass(r), p).sum(0) + spin
+        out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        out["newton_iterations"] = self.stats.iterations
+        return out
 
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""
         m, st = self.model, self.state
-        cfg = m.config(np.concatenate([st.q, st.lam]))
         out = {}
-        if m.has_fluid:
-            rho, p, u = m.fluid_fields(cfg, st.p)
-            out["fluid/s"] = cfg.s.copy()
-            out["fluid/density"] = rho
-            out["fluid/pressure"] = p
-            out["fluid/velocity"] = u
-            out["fluid/entropy"] = m.S.copy()
-        if m.has_wall:
-            out["wall/R"] = m.full_radius(cfg)
-            if m.wall_dynamic:
-                vR = st.v[m.layout["R"]]
-                out["wall/velocity"] = np.append(vR, vR[0]) if m.periodic else vR.copy()
+        t = m.tube
+        if t is not None:
+            q = st.q[m.tube_q]
+            cfg = t.config(np.concatenate([q, st.lam]))
+            if t.has_fluid:
+                rho, p, u = t.fluid_fields(cfg, st.p[m.tube_p])
+                out["fluid/s"] = cfg.s.copy()
+                out["fluid/density"] = rho
+                out["fluid/pressure"] = p
+                out["fluid/velocity"] = u
+                out["fluid/entropy"] = t.S.copy()
+            if t.has_wall:
+                out["wall/R"] = t.full_radius(cfg)
+                if t.wall_dynamic:
+                    vR = st.v[m.tube_p][t.layout["R"]]
+                    out["wall/velocity"] = np.append(vR, vR[0]) if t.periodic else vR.copy()
+        if m.rod is not None:
+            Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
+            out["rod/r"] = r + origin
+            out["rod/Lambda"] = Lam.copy()
         return out

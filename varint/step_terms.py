@@ -1,0 +1,179 @@
+"""The terms of one step's discrete Lagrangian L_d(q_n, q_{n+1}, lam), kinetic ones included.
+
+The stepper (:mod:`varint.stepper`) solves the position-momentum discrete Euler-Lagrange equations of
+L_d = sum of these terms (docs/theory.md §4, §9):
+
+    p_n + D1 L_d + f^- = 0,    D_lam L_d = 0,    p_{n+1} = D2 L_d + f^+.
+
+Each term reads the two levels of a step (:class:`StepPoint`) and adds its value, its exact D1 / D_lam
+(level n and algebraic unknowns) or D2 (level n+1) into a :class:`Derivatives`, and its block of the
+Newton Jacobian d(residual)/dz, in the step unknowns z of :class:`varint.model.Model`.  Derivatives are
+taken in each block's own variations: plain for the tube's labels, radii and multipliers; for the rod,
+dr (spatial) and sigma (Lambda -> Lambda cay(sigma), body) per node.
+
+Terms know no stepper and no assembly: the model lists them, the stepper sums them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements"]
+
+
+@dataclass
+class StepPoint:
+    """Both levels of a step, in each part's own coordinates (``None`` for an absent part)."""
+
+    h: float
+    q0: np.ndarray | None = None  #: tube inertial unknowns at level n
+    q1: np.ndarray | None = None  #: ... at level n+1
+    lam: np.ndarray | None = None  #: tube algebraic unknowns (half level)
+    Lam_n: np.ndarray | None = None  #: rod frames at level n (N+1, 3, 3)
+    r_n: np.ndarray | None = None  #: rod positions at level n (relative to the floating origin)
+    xi: np.ndarray | None = None  #: cay^-1(Lambda_n^T Lambda_{n+1}) per node
+    r_1: np.ndarray | None = None  #: rod positions at level n+1
+
+
+class Derivatives:
+    """D1 (with D_lam) or D2 of L_d, per part."""
+
+    def __init__(self, model):
+        t, r = model.tube, model.rod
+        self.tube_q = np.zeros(t.nq if t is not None else 0)
+        self.tube_lam = np.zeros(t.nlam if t is not None else 0)
+        self.rod = np.zeros((r.N + 1, 6)) if r is not None else None
+
+
+def _embed(block, offset, nz):
+    """A square sparse block placed at (offset, offset) of an (nz, nz) matrix."""
+    if offset == 0 and block.shape == (nz, nz):  # the only part: no copy
+        return sp.csc_matrix(block)
+    block = sp.coo_matrix(block)
+    return sp.csc_matrix((block.data, (block.row + offset, block.col + offset)), shape=(nz, nz))
+
+
+class TubeKinetic:
+    """h 1/2 v.M.v, v = (q1 - q0)/h, with the tube's constant diagonal mass (labels and dynamic radii)."""
+
+    name = "tube_kinetic"
+
+    def __init__(self, tube, offset, nz):
+        self.tube, self.offset, self.nz = tube, offset, nz
+
+    @property
+    def mass(self):
+        return self.tube.mass
+
+    def value(self, pt):
+        v = (pt.q1 - pt.q0) / pt.h
+        return pt.h * 0.5 * float(np.dot(self.mass * v, v))
+
+    def add(self, pt, d, level):
+        mv = self.mass * (pt.q1 - pt.q0) / pt.h
+        d.tube_q += -mv if level == 0 else mv
+
+    def jacobian(self, pt):
+        t = self.tube
+        diag = np.concatenate([-self.mass / pt.h, np.zeros(t.nlam)])
+        return _embed(sp.diags(diag), self.offset, self.nz)
+
+    def constant_diagonal_jacobian(self):
+        return True
+
+
+class TubeMidpointPotential:
+    """-h U(config((q0 + q1)/2, lam)): the tube's potential terms (varint.terms) at the step's midpoint."""
+
+    name = "tube_potential"
+    order = 2  #: global order in h of the scheme it makes (symmetric one-stage quadrature)
+
+    def __init__(self, tube, offset, nz):
+        self.tube, self.offset, self.nz = tube, offset, nz
+        self.Bq = tube.B[:, :tube.nq]
+        self.Bl = tube.B[:, tube.nq:]
+
+    def config(self, pt):
+        return self.tube.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
+
+    def value(self, pt):
+        return -pt.h * self.tube.potential(self.config(pt))
+
+    def add(self, pt, d, level):
+        g = self.tube.gradient(self.config(pt))
+        d.tube_q -= 0.5 * pt.h * (self.Bq.T @ g)
+        if level == 0:
+            d.tube_lam -= pt.h * (self.Bl.T @ g)
+
+    def jacobian(self, pt):
+        H = self.tube.hessian(self.config(pt))
+        C = sp.hstack([0.5 * self.Bq, self.Bl]).tocsr()
+        return _embed(-pt.h * (C.T @ H @ C), self.offset, self.nz)
+
+    def constant_diagonal_jacobian(self):
+        return False
+
+    def energies(self, pt):
+        """Each potential term's value at the step's midpoint (the step-energy monitor)."""
+        return self.tube.energies(self.config(pt))
+
+
+class TubeTrapezoidalPotential:
+    """-h [U(q0) + U(q1)]/2 (Stormer-Verlet; only without algebraic unknowns)."""
+
+    name = "tube_potential"
+    order = 2  #: global order in h (Stormer-Verlet)
+
+    def __init__(self, tube, offset, nz):
+        if tube.nlam:
+            raise ValueError("the trapezoidal scheme needs every unknown to carry inertia")
+        self.tube, self.offset, self.nz = tube, offset, nz
+        self.Bq = tube.B[:, :tube.nq]
+
+    def _U(self, q):
+        return self.tube.potential(self.tube.config(q))
+
+    def value(self, pt):
+        return -0.5 * pt.h * (self._U(pt.q0) + self._U(pt.q1))
+
+    def add(self, pt, d, level):
+        q = pt.q0 if level == 0 else pt.q1
+        d.tube_q -= 0.5 * pt.h * (self.Bq.T @ self.tube.gradient(self.tube.config(q)))
+
+    def jacobian(self, pt):
+        # D1 reads level n only: the step residual is affine in q_{n+1} (explicit Stormer-Verlet)
+        return sp.csc_matrix((self.nz, self.nz))
+
+    def constant_diagonal_jacobian(self):
+        return True
+
+
+class RodElements:
+    """The rod's element kernels (varint.rod ``_k_element``): kinetic, elastic, gravity and dead tip force.
+
+    One term because one element kernel computes them together, exactly (docs/theory.md §9); the
+    declarations of its pieces are :meth:`varint.rod.RodPart.declarations`.  Its Newton block has the
+    translational rows in the level-n body frame of their node and the columns in (b, xi), the chart
+    of the rod blocks (:class:`varint.model.Model`).
+    """
+
+    name = "rod"
+    order = 2
+
+    def __init__(self, rod, offset, nz):
+        self.rod, self.offset, self.nz = rod, offset, nz
+
+    def value(self, pt):
+        return self.rod.gradients(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1)[2]
+
+    def add(self, pt, d, level):
+        d.rod += self.rod.derivative(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, level=level)
+
+    def jacobian(self, pt):
+        return _embed(self.rod.step_jacobian(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1), self.offset, self.nz)
+
+    def constant_diagonal_jacobian(self):
+        return False
