@@ -20,9 +20,9 @@ import time
 import numpy as np
 import scipy.linalg as sla
 
-from varint import build_model, parse_scene
+from varint import Simulation, build_model, parse_scene
 from varint.errors import SolverError
-from varint.rod import RodSimulation, _unpack
+from varint.rod import unpack_level
 from varint.rod_statics import rod_modes
 
 N = 50
@@ -73,7 +73,7 @@ def make(n=N, h=H_BAND, sec=None, curvature=(0, 0, 2.0), spin=(0, 0, 2.0), dim=2
 
 def run(model, h, steps, stop=10.0, on_step=None):
     """Energy history of a varint run; stops at a solver error or when |E/E0 - 1| > stop."""
-    sim = RodSimulation(model, h=h)
+    sim = Simulation(model, h=h)
     E = [sim.monitors()["energy"]]
     err = None
     for n in range(steps):
@@ -196,20 +196,21 @@ def table_d():
         st = sim.state
         if st.n % 40 and st.n < 385:
             return
-        Lam, r, _ = _unpack(st.q, m.N)
-        p = st.p[: 3 * (m.N + 1)].reshape(-1, 3)
-        Pi = st.p[3 * (m.N + 1):].reshape(-1, 3)
-        eta = X.T @ np.concatenate([np.einsum("nji,nj->ni", Lam, p), Pi], 1)[m.mask]
+        Lam, r, _ = unpack_level(st.q[m.rod_q], m.N)
+        pp = st.p[m.rod_p]
+        p = pp[: 3 * (m.N + 1)].reshape(-1, 3)
+        Pi = pp[3 * (m.N + 1):].reshape(-1, 3)
+        eta = X.T @ np.concatenate([np.einsum("nji,nj->ni", Lam, p), Pi], 1)[m.rod.mask]
         ke = 0.5 * eta ** 2
         E = sim.monitors()["energy"]
         E0[0] = E0[0] or sim_e0
-        krot = 0.5 * np.sum(Pi * Pi / m.node_inertia)
+        krot = 0.5 * np.sum(Pi * Pi / m.rod.node_inertia)
         stiff = np.argsort(ke * (f > 1000))[::-1][:3]
         top = ", ".join(f"{f[i]:.0f} ({h * f[i]:.1f}, {ke[i] / ke[f > 1000].sum():.0%})" for i in stiff)
         print(f"   {st.t:5.2f}  {E / sim_e0 - 1:+8.1e}  {krot:9.1e}  " +
               "".join(f"{ke[(f >= a) & (f < b)].sum():10.1e}" for a, b, _ in bands) + "   " + top, flush=True)
 
-    sim_e0 = RodSimulation(m, h=h).monitors()["energy"]
+    sim_e0 = Simulation(m, h=h).monitors()["energy"]
     run(m, h, 400, on_step=probe)
 
 
@@ -228,14 +229,15 @@ class PlanarRod:
     """
 
     def __init__(self, model, cayley):
-        sec = model.section
+        rod = model.rod
+        sec = rod.section
         self.N, self.ds, self.cayley = model.N, model.ds, cayley
         self.C = np.array([sec.EI, sec.EA, sec.kGA])
-        w = model.w
+        w = rod.w
         self.M = np.stack([sec.rhoA * w, sec.rhoA * w, sec.rhoI * w], 1)
-        th = np.arctan2(model.Lam0[:, 1, 0], model.Lam0[:, 0, 0])
-        self.q0 = np.concatenate([model.r0[:, :2], th[:, None]], 1)
-        self.p0 = self.M * np.concatenate([model.v0[:, :2], np.full((self.N + 1, 1), model.spin[2])], 1)
+        th = np.arctan2(rod.Lam0[:, 1, 0], rod.Lam0[:, 0, 0])
+        self.q0 = np.concatenate([rod.r0[:, :2], th[:, None]], 1)
+        self.p0 = self.M * np.concatenate([rod.v0[:, :2], np.full((self.N + 1, 1), rod.spin[2])], 1)
 
     def strains(self, q):
         x, y, th = q[..., 0], q[..., 1], q[..., 2]
