@@ -1,5 +1,12 @@
-"""The fluid's kinetic step term on the moving centreline (docs/theory.md §10.4) against finite
-differences of its own action, its symmetries (the Noether momenta of §10.6) and the straight tube."""
+"""The coupled tube's fluid step terms (docs/theory.md §10.4, §10.5) against independent references.
+
+Kinetic term: finite differences of its own action, its symmetries (the Noether momenta of §10.6), the
+straight tube.  Potential term (internal energy or volume constraint, external pressure, gravity), each
+term alone and all together, ideal gas / barotropic / incompressible, closed and periodic: level
+gradients against central differences of L (Lie variations Lambda cay(eps e_d) for the frames), the
+Newton blocks of both terms against differences of the rotated residual in the step unknowns, rigid-motion
+invariance and the level-wise identities of §10.6, and the 0.1 tube terms on the fixed straight
+centreline (varint/terms.py through the model's tube part)."""
 
 import math
 
@@ -497,8 +504,9 @@ def test_straight_fixed_centreline_reduces_to_the_tube_terms(fluid, ends):
     grad = model.gradient(cfg)
     U = model.potential(cfg)
     wall = [t for t in model.terms if t.name == "wall_elastic"]
-    assert len(wall) == 1 and {t.name for t in model.terms} - {"wall_elastic"} == (
-        {"incompressibility", "external_pressure", "gravity"} if fluid == "liquid" else {"internal", "external_pressure", "gravity"})
+    fluid_term = "incompressibility" if fluid == "liquid" else "internal"
+    assert len(wall) == 1
+    assert {t.name for t in model.terms} - {"wall_elastic"} == {fluid_term, "external_pressure", "gravity"}
     gs, gR, gmu = np.zeros(M + 1), np.zeros(nR), np.zeros(M if mu is not None else 0)
     wall[0].gradient(cfg, {}, gs, gR, gmu)
     U -= wall[0].energy(cfg, {})
@@ -513,3 +521,36 @@ def test_straight_fixed_centreline_reduces_to_the_tube_terms(fluid, ends):
     # values: 0.1 leaves the fixed end labels out of gravity (a constant); here they carry mbar_0, mbar_M
     ends_term = 0.0 if periodic else model.gx * mbar[-1] * L
     assert out.L == pytest.approx(-HP * (U - ends_term), rel=1e-12)
+
+
+# -- the small pieces the term is built from
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+def test_stretch_map_and_element_strains(periodic):
+    ds, Lam, r, _, _ = _rod(periodic, 7, 1.2, 9)
+    n = len(r)
+    G = np.random.default_rng(1).uniform(0.8, 1.2, n if periodic else n - 1)
+    assert np.allclose(stretch_map(n, periodic) @ G, nodal_stretch(G, periodic), rtol=1e-15, atol=0)
+    Gam, pa, pb = element_strains(Lam, r, ds, periodic)
+    for e in range(len(Gam)):  # one element at a time, the periodic closing element with r_N = r_0 + L e_1
+        b = (e + 1) % n
+        chord = r[b] - r[e] + (np.array([1.2, 0, 0]) if b < e + 1 else 0.0)
+        assert np.allclose(Gam[e], 0.5 * (Lam[e] + Lam[b]).T @ chord / ds, rtol=1e-14, atol=1e-15)
+        assert np.allclose(pa[e], Lam[e].T @ chord, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+def test_external_pressure_works_on_the_whole_stretched_volume(periodic):
+    """L of p_ext alone is -h p_ext Vol(Rbar, gamma) with Vol the sum of the parcel volumes over the whole
+    tube (varint/coupled_geometry.py, checked there against quadrature)."""
+    fp, st = _case("pext", periodic)
+    fp = FluidPotential(**{**fp.__dict__, "g": np.zeros(3)})
+    out = fluid_potential_step(fp, HP, **st)
+    G0 = element_strains(st["Lam0"], st["r0"], fp.ds, periodic)[0]
+    G1 = element_strains(st["Lam1"], st["r1"], fp.ds, periodic)[0]
+    gamma = nodal_stretch(np.linalg.norm(0.5 * (G0 + G1), axis=1), periodic)
+    Rbar = 0.5 * (st["R0"] + st["R1"])
+    ends = np.array([0.3, 0.3 + 1.2]) if periodic else np.array([0.0, 1.2])
+    Vol = stretched_volumes(ends, Rbar, gamma, fp.ds, periodic)[0]
+    assert out.L == pytest.approx(-HP * fp.p_ext * Vol, rel=1e-13)
