@@ -26,10 +26,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 from helpers import to_toml, zero_crossing_frequency  # noqa: E402
 from test_rod import solid_section  # noqa: E402
 
-from varint import build_model, parse_scene  # noqa: E402
+from varint import Simulation, build_model, parse_scene  # noqa: E402
 from varint.analysis import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
 from varint.lie import cay  # noqa: E402
-from varint.rod import RodSimulation  # noqa: E402
 
 L, RAD, RHO, N_EL, TIP = 1.0, 0.01, 1000.0, 100, 0.01
 
@@ -60,16 +59,16 @@ def varint_run(E, h, periods, w_ref):
     model = build_model(parse_scene(to_toml(d)))
     s = np.linspace(0.0, L, N_EL + 1)
     y, dy = mode_shape(s)
-    model.set_configuration(cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1)),
+    model.rod.set_configuration(cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1)),
                             np.stack([s, y, np.zeros_like(s)], axis=1))
-    sim = RodSimulation(model)
+    sim = Simulation(model)
     n = int(round(periods * 2 * math.pi / w_ref / h))
     t, tip, E_ = np.empty(n), np.empty(n), np.empty(n)
     t0 = time.perf_counter()
     for i in range(n):
         sim.step()
         t[i] = sim.state.t
-        tip[i] = sim.state.q[3 * N_EL + 1]
+        tip[i] = sim.state.q[model.rod_q][3 * N_EL + 1]  # y of the tip node (layout: varint.model)
         E_[i] = sim.monitors()["energy"]
     wall = time.perf_counter() - t0
     return t, tip, E_, wall, sim.stats.total_iterations / n
