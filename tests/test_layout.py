@@ -73,3 +73,52 @@ def test_invariants_follow_term_declarations():
     assert "axial_momentum" not in m.invariants()
     _, m = make(gas_scene(wall=False, ends="closed"))
     assert "axial_momentum" not in m.invariants() and "parcel_entropy" in m.invariants()
+
+
+def _rod_model(**rod):
+    from test_rod import rod_scene
+    from varint import build_model
+
+    return build_model(rod_scene(**rod))
+
+
+def test_one_model_whatever_the_effects():
+    """Tube and rod scenes build the same Model class; each has only its own blocks and step terms, and
+    the one Simulation steps both (no second code path)."""
+    from varint import Model, Simulation
+
+    _, tube = make(gas_scene())
+    rod = _rod_model(nodes=6, ends=("clamped", "free"))
+    assert type(tube) is Model and type(rod) is Model
+    assert tube.rod is None and rod.tube is None
+    assert set(tube.layout) == {"s", "R"} and set(rod.layout) == {"r", "Lambda"}
+    assert [t.name for t in tube.step_terms()] == ["tube_kinetic", "tube_potential"]
+    assert [t.name for t in rod.step_terms()] == ["rod"]
+    # the clamped node 0 has no unknowns; every other node has 3 + 3; r and Lambda interleave node by node
+    assert len(rod.layout["r"]) == len(rod.layout["Lambda"]) == 3 * 5 and rod.nz == 30
+    assert np.array_equal(np.sort(np.concatenate([rod.layout["r"], rod.layout["Lambda"]])), np.arange(30))
+    assert np.array_equal(rod.layout["r"][:3], [0, 1, 2]) and np.array_equal(rod.layout["Lambda"][:3], [3, 4, 5])
+    for model in (tube, rod):
+        sim = Simulation(model)
+        sim.step()
+        assert sim.state.n == 1 and np.isfinite(sim.monitors()["energy"])
+
+
+def test_a_rod_checkpoint_without_the_floating_origin_resumes():
+    """Rod checkpoints written before the floating origin existed hold q = (r, Lambda): assigning such a
+    state appends a zero origin, and the step continues exactly as from the same state with it."""
+    from varint import Simulation
+
+    model = _rod_model(nodes=6, ends=("clamped", "free"), initial={"curvature": [0.0, 1.0, 2.0]}, gravity=[0.0, 0.0, -9.81])
+    sim = Simulation(model)
+    sim.step()
+    old = sim.state.copy()
+    old.q, old.q_prev = old.q[:-3], None
+    assert not sim.floating_origin and not np.any(sim.state.q[-3:])  # a supported rod's origin stays at 0
+    other = Simulation(model)
+    other.state = old
+    assert other.state.q.shape == sim.state.q.shape
+    sim.invalidate_jacobian()  # as at a checkpoint: both start from a fresh Jacobian
+    sim.step()
+    other.step()
+    assert np.array_equal(sim.state.q, other.state.q) and np.array_equal(sim.state.p, other.state.p)

@@ -222,11 +222,7 @@ class Simulation:
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
-        if state is None:
-            state = State(0, 0.0, *model.initial_state(self.h))
-        else:
-            state.q = model.upgrade_level(state.q)
-        self.state = state
+        self.state = state if state is not None else State(0, 0.0, *model.initial_state(self.h))
         self.stats = StepStats()
         self._factor = None
         self.scale, self.offset = self._scales()
@@ -235,6 +231,19 @@ class Simulation:
         # are computed from O(L) numbers: with absolute coordinates their round-off grows like eps |r|
         # and a rod drifting 3.7 km lost its angular momentum to 1e-8 (docs/validation.md).
         self.floating_origin = model.rod is not None and model.rod.free
+
+    @property
+    def state(self):
+        """The current level (:class:`State`)."""
+        return self._state
+
+    @state.setter
+    def state(self, st):
+        # a checkpoint written before the rod's floating origin existed gains it (varint.model.Model.upgrade_level)
+        st.q = self.model.upgrade_level(st.q)
+        if st.q_prev is not None:
+            st.q_prev = self.model.upgrade_level(st.q_prev)
+        self._state = st
 
     def _scales(self):
         """Scale of each unknown (Newton's error norm) and the size of the quantity it displaces (the
