@@ -1,9 +1,9 @@
 """Cost of the rod's Newton Jacobian and of a rod step: exact element Jacobian against the 0.1
 finite-difference one, side by side in one run (docs/performance.md, "Exact rod Jacobian").
 
-* one Jacobian: ``RodSimulation.jacobian`` (element blocks by complex step of the analytic element
-  gradient, assembled) against ``RodSimulation.jacobian_fd`` (colour-grouped central differences of
-  the residual, the 0.1 path), and one residual (analytic gradient against the complex step of the
+* one Jacobian: ``sim.scheme.jacobian`` (the rod term's element blocks by complex step of the analytic
+  element gradient, assembled) against :func:`jacobian_fd` (colour-grouped central differences of
+  the residual, the 0.1 path, rebuilt here with ``varint.rod.banded_jacobian``), and one residual (analytic gradient against the complex step of the
   whole L_d), at 10 and 100 elements, planar and 3D;
 * a rod step at 100 elements: the 0.1 path (complex-step residual, finite-difference Jacobian)
   against the exact one, on the planar PyElastica cantilever (scripts/bench_pyelastica.py's section,
@@ -25,9 +25,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_rod import SPIN, STIFF, rod_scene, solid_section  # noqa: E402
 
-from varint import build_model  # noqa: E402
-import varint.rod as vr  # noqa: E402
-from varint.rod import RodSimulation, _unpack  # noqa: E402
+import varint.stepper as vs  # noqa: E402
+from varint import Simulation, build_model  # noqa: E402
+from varint.rod import RATE_REFRESH_ROD, banded_jacobian  # noqa: E402
 
 
 def best_of(fn, repeat=5):
@@ -39,10 +39,30 @@ def best_of(fn, repeat=5):
     return best
 
 
+def jacobian_fd(step, q0, p0, z):
+    """Colour-grouped central differences of the step residual (the 0.1 Jacobian, kept for comparison):
+    ``banded_jacobian`` on the residual spread over all (N+1, 6) rod components (zero off the mask), as
+    in tests/test_rod_exact_derivatives.py.  Rod-only models: the rod's unknowns are all of z."""
+    m = step.model
+    mask = m.rod.mask
+
+    def full(zz):
+        R = np.zeros((m.N + 1, 6))
+        R[mask] = step.residual(q0, p0, zz)
+        return R
+
+    return banded_jacobian(full, z, mask, m.ds)
+
+
 def old_path(sim):
-    """Turn a simulation into the 0.1 one: complex-step residual, finite-difference Jacobian."""
-    sim.model.derivative = sim.model.derivative_complex_step
-    sim.jacobian = sim.jacobian_fd
+    """Turn a simulation into the 0.1 one: complex-step residual, finite-difference Jacobian.
+
+    The rod term reads ``model.rod.derivative`` (an instance attribute overrides the method) and the
+    stepper's Newton calls ``sim.scheme.jacobian(q0, z)``; the residual is p_n + D1 L_d + f^-, so its
+    Jacobian does not depend on p_n, which is read from the state the step starts from, as 0.1 did."""
+    rod = sim.model.rod
+    rod.derivative = rod.derivative_complex_step
+    sim.scheme.jacobian = lambda q0, z: jacobian_fd(sim.scheme, q0, sim.state.p, z)
     return sim
 
 
@@ -58,19 +78,19 @@ def jacobian_table():
     rows = []
     for n_el in (10, 100):
         for name, scene in scenes(n_el).items():
-            sim = RodSimulation(build_model(scene))
+            sim = Simulation(build_model(scene))
             sim.step()
-            N = sim.model.N
-            Lam, r, _ = _unpack(sim.state.q, N)
-            pi = sim.state.p.reshape(2, N + 1, 3).transpose(1, 0, 2).reshape(N + 1, 6)
-            z = np.concatenate(np.split(sim.state.v.reshape(2, N + 1, 3), 2), axis=2)[0][sim.model.mask]
-            sim.jacobian(z, Lam, r, pi), sim.jacobian_fd(z, Lam, r, pi)  # compile
-            t_new = best_of(lambda: sim.jacobian(z, Lam, r, pi))
-            t_old = best_of(lambda: sim.jacobian_fd(z, Lam, r, pi))
-            t_res = best_of(lambda: sim.residual(z, Lam, r, pi))
-            r1, xi = sim._split(z, Lam, r)
-            t_cs = best_of(lambda: sim.model.derivative_complex_step(sim.h, Lam, r, xi, r1, 0))
-            t_an = best_of(lambda: sim.model.derivative(sim.h, Lam, r, xi, r1, 0))
+            step, q0, p0 = sim.scheme, sim.state.q, sim.state.p
+            z = sim.predictor()  # the Newton start of the next step (last step's b, xi)
+            step.jacobian(q0, z), jacobian_fd(step, q0, p0, z)  # compile
+            t_new = best_of(lambda: step.jacobian(q0, z))
+            t_old = best_of(lambda: jacobian_fd(step, q0, p0, z))
+            t_res = best_of(lambda: step.residual(q0, p0, z))
+            pt = step.point(q0, z)
+            rod = sim.model.rod
+            Lam, r, xi, r1 = pt.Lam_n, pt.r_n, pt.xi, pt.r_1
+            t_cs = best_of(lambda: rod.derivative_complex_step(sim.h, Lam, r, xi, r1, 0))
+            t_an = best_of(lambda: rod.derivative(sim.h, Lam, r, xi, r1, 0))
             rows.append((name, n_el, sim.model.nz, t_old, t_new, t_cs, t_an, t_res))
     print("| rod | elements | unknowns | FD Jacobian ms | exact Jacobian ms | ratio | CS gradient us | analytic gradient us | ratio | exact Jacobian / residual |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -84,13 +104,14 @@ def step_table(steps=200):
     print("| rod (100 elements) | path | ms per step | Newton iterations / step | Jacobians / step | 0.1 / this |")
     print("|---|---|---|---|---|---|")
     paths = (("0.1: CS residual, FD Jacobian, refresh rate 0.5", True, 0.5), ("exact, refresh rate 0.5", False, 0.5),
-             (f"exact, refresh rate {vr.RATE_REFRESH_ROD} (default)", False, vr.RATE_REFRESH_ROD))
-    default_rate = vr.RATE_REFRESH_ROD
+             (f"exact, refresh rate {RATE_REFRESH_ROD} (default)", False, RATE_REFRESH_ROD))
+    # the stepper reads its own binding of the rate (imported from varint.rod): swap that one
+    default_rate = vs.RATE_REFRESH_ROD
     for name, scene in scenes(100).items():
         out = {}
         for path, old, rate in paths:
-            vr.RATE_REFRESH_ROD = rate
-            sim = RodSimulation(build_model(scene))
+            vs.RATE_REFRESH_ROD = rate
+            sim = Simulation(build_model(scene))
             if old:
                 old_path(sim)
             sim.step()  # compile, first Jacobian
@@ -101,7 +122,7 @@ def step_table(steps=200):
             wall = (time.perf_counter() - t0) / steps
             out[path] = (wall, (sim.stats.total_iterations - it0) / steps, (sim.stats.total_jacobians - jac0) / steps,
                          sim.monitors()["energy"])
-        vr.RATE_REFRESH_ROD = default_rate
+        vs.RATE_REFRESH_ROD = default_rate
         w_old = out[paths[0][0]][0]
         for path, (w, i, j, _) in out.items():
             print(f"| {name} | {path} | {1e3 * w:.3g} | {i:.2f} | {j:.3f} | {w_old / w:.1f} |")
@@ -114,7 +135,6 @@ def noise_table():
     by Cholesky of the exact K: the largest eigenvalues of K^-1 are the accurate ones)."""
     import scipy.linalg as sla
 
-    from varint.rod import banded_jacobian
     from varint.rod_statics import _force_jacobian, _force_map, lumped_mass
 
     print()
@@ -123,9 +143,10 @@ def noise_table():
     for dim in (2, 3):
         for rad in (1e-2, 1e-3, 1e-4, 1e-5, 1e-6):
             model = build_model(rod_scene(nodes=101, dimension=dim, section=solid_section(rad=rad), ends=("clamped", "free")))
-            M = lumped_mass(model)[model.mask]
-            Kfd = -banded_jacobian(_force_map(model, model.Lam0, model.r0), np.zeros(model.nz), model.mask, model.ds).toarray()
-            Kex = -_force_jacobian(model, model.Lam0, model.r0).toarray()
+            rod = model.rod
+            M = lumped_mass(rod)[rod.mask]
+            Kfd = -banded_jacobian(_force_map(rod, rod.Lam0, rod.r0), np.zeros(rod.nz), rod.mask, rod.ds).toarray()
+            Kex = -_force_jacobian(rod, rod.Lam0, rod.r0).toarray()
             Kfd, Kex = 0.5 * (Kfd + Kfd.T), 0.5 * (Kex + Kex.T)
             Mh = np.sqrt(M)
             C = Mh[:, None] * sla.cho_solve(sla.cho_factor(Kex), np.diag(Mh))
