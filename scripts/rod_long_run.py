@@ -19,18 +19,18 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_rod import tumbling_model  # noqa: E402
 
-from varint.rod import RodSimulation  # noqa: E402
+from varint import Simulation  # noqa: E402
 
 
 def main(steps, at_rest=False, h=1e-2, measure="reference"):
     model = tumbling_model(h=h, at_rest=at_rest, measure=measure)
-    sim = RodSimulation(model)
+    sim = Simulation(model)
     sim.step()
     m1 = sim.monitors()
     P, J, E = m1["linear_momentum"], m1["angular_momentum"], m1["energy"]
     Jc = m1["angular_momentum_cm"]
     # with the centre of mass at rest P = 0: measure it against the momentum of the motion, sum |p_j|
-    p_sum = np.sum(np.linalg.norm(sim.state.p[: 3 * (model.N + 1)].reshape(-1, 3), axis=1))
+    p_sum = np.sum(np.linalg.norm(sim.state.p[model.rod_p][: 3 * (model.N + 1)].reshape(-1, 3), axis=1))
     P_scale = np.linalg.norm(P) if np.linalg.norm(P) > 1e-6 * p_sum else p_sum
     worst = {"linear": 0.0, "angular": 0.0, "angular_cm": 0.0, "orthogonality": 0.0}
     marks = {10 ** k for k in range(2, 6)} | set(range(100_000, steps + 1, 100_000)) | set(range(2000, min(steps, 20_000) + 1, 2000))
@@ -49,7 +49,7 @@ def main(steps, at_rest=False, h=1e-2, measure="reference"):
             print(f"steps {n:>8d}  wall {time.perf_counter() - t0:8.1f} s  energy dev: max {np.max(np.abs(b)):.3e}, "
                   f"mean of the last tenth {np.mean(b[-max(1, len(b) // 10):]):+.3e}  "
                   f"momenta {worst['linear']:.2e} / {worst['angular']:.2e} (about the centre of mass {worst['angular_cm']:.2e})  orthogonality {worst['orthogonality']:.2e}  "
-                  f"Newton fallbacks {getattr(sim.stats, 'fallbacks', 0)}", flush=True)
+                  f"Newton fallbacks {sim.stats.fallbacks}", flush=True)
 
 
 if __name__ == "__main__":
