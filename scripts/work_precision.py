@@ -31,18 +31,19 @@ def model_for(h, scheme):
 
 
 def rhs_factory(model):
-    Bq = model.B[:, : model.nq]
-    Minv = 1.0 / model.mass
-    nq = model.nq
+    tube = model.tube  # the s, R blocks (varint.tube.TubePart); no algebraic unknowns in this scene
+    Bq = tube.B[:, : tube.nq]
+    Minv = 1.0 / tube.mass
+    nq = tube.nq
 
     def rhs(t, y):
         q, p = y[:nq], y[nq:]
-        g = model.gradient(model.config(q))
+        g = tube.gradient(tube.config(q))
         return np.concatenate([Minv * p, -(Bq.T @ g)])
 
     def jac(t, y):
         q = y[:nq]
-        K = (Bq.T @ model.hessian(model.config(q)) @ Bq).tocsr()
+        K = (Bq.T @ tube.hessian(tube.config(q)) @ Bq).tocsr()
         Z = sp.csr_matrix((nq, nq))
         return sp.bmat([[Z, sp.diags(Minv)], [-K, Z]]).tocsc()
 
@@ -56,16 +57,16 @@ def run_varint(h, scheme):
     t0 = time.perf_counter()
     for _ in range(n):
         sim.step()
-    return time.perf_counter() - t0, sim.state.q.copy()
+    return time.perf_counter() - t0, sim.state.q[model.tube_q].copy()
 
 
 def run_scipy(method, rtol, model):
     rhs, jac = rhs_factory(model)
-    y0 = np.concatenate([model.q_init, model.p_init])
+    y0 = np.concatenate([model.tube.q_init, model.tube.p_init])
     kw = {"jac": jac} if method == "Radau" else {}
     t0 = time.perf_counter()
     sol = solve_ivp(rhs, (0.0, T_END), y0, method=method, rtol=rtol, atol=rtol * 1e-3, **kw)
-    return time.perf_counter() - t0, sol.y[: model.nq, -1], sol.nfev
+    return time.perf_counter() - t0, sol.y[: model.tube.nq, -1], sol.nfev
 
 
 def main():
@@ -133,16 +134,17 @@ def long_time_energy(T_long=0.2):
         print(f"| varint {scheme} | h = {h:g} | {wall:.2f} | {err.max():.2e} | {err[-n // 10:].max():.2e} |")
     model = model_for(1e-5, "midpoint")
     rhs, jac = rhs_factory(model)
-    Minv = 1.0 / model.mass
-    nq = model.nq
-    y0 = np.concatenate([model.q_init, model.p_init])
+    tube = model.tube
+    Minv = 1.0 / tube.mass
+    nq = tube.nq
+    y0 = np.concatenate([tube.q_init, tube.p_init])
     for method, rtol in (("DOP853", 1e-6), ("DOP853", 1e-9), ("Radau", 1e-6)):
         kw = {"jac": jac} if method == "Radau" else {}
         t0 = time.perf_counter()
         sol = solve_ivp(rhs, (0.0, T_long), y0, method=method, rtol=rtol, atol=rtol * 1e-3, dense_output=False, **kw)
         wall = time.perf_counter() - t0
         K = np.array([0.5 * np.dot(Minv * y[nq:], y[nq:]) for y in sol.y.T])
-        E = K + np.array([model.potential(model.config(y[:nq])) for y in sol.y.T])
+        E = K + np.array([tube.potential(tube.config(y[:nq])) for y in sol.y.T])
         err = np.abs(E - E[0]) / K.max()
         k = max(1, len(err) // 10)
         print(f"| scipy {method} | rtol = {rtol:g} | {wall:.2f} | {err.max():.2e} | {err[-k:].max():.2e} |")
