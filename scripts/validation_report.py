@@ -34,7 +34,8 @@ def sound_speed():
 
 
 def dispersion():
-    _, m = make(gas_scene(nodes=129, parcels=128, ends="periodic"))
+    _, model = make(gas_scene(nodes=129, parcels=128, ends="periodic"))
+    m = model.tube  # the s, R blocks; the mode shapes are in its inertial unknowns
     res, X = modes(m, count=m.nq, vectors=True)
     freq = np.array([r["frequency"] for r in res])
     idx = np.array([tw._fourier_index(X[m.layout["R"], i]) for i in range(X.shape[1])])
