@@ -59,6 +59,7 @@ UNITS = {
     "monitors/frame_orthogonality": "1",
     # fields
     "fields/fluid/s": "m",
+    "fields/fluid/position": "m",
     "fields/fluid/density": "kg/m^3",
     "fields/fluid/pressure": "Pa",
     "fields/fluid/velocity": "m/s",
@@ -72,6 +73,7 @@ UNITS = {
 #: Names of the axes after the first (time), by path; monitors of shape (3,) are vectors ("component").
 DIMS = {
     "fields/fluid/s": ("label",),
+    "fields/fluid/position": ("label", "component"),
     "fields/fluid/velocity": ("label",),
     "fields/fluid/density": ("parcel",),
     "fields/fluid/pressure": ("parcel",),

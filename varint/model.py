@@ -39,9 +39,9 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SceneError
-from .forces import derive_invariants
+from .forces import Declaration, derive_invariants
 from .rod import RodPart, pack_level
-from .step_terms import RodElements, TubeKinetic, TubeMidpointPotential, TubeTrapezoidalPotential
+from .step_terms import CoupledFluid, RodElements, TubeKinetic, TubeMidpointPotential, TubeTrapezoidalPotential
 from .tube import TubePart
 
 __all__ = ["Model", "build_model"]
@@ -62,9 +62,8 @@ class Model:
         self.tube = TubePart(scene) if has_tube_effect or scene.rod is None else None
         #: the r, Lambda blocks (None without [rod])
         self.rod = RodPart(scene) if scene.rod is not None else None
-        if self.tube is not None and self.rod is not None and has_tube_effect:
-            # the scene reader refuses this combination until the coupled terms of docs/theory.md §10 land
-            raise SceneError("[rod] with [fluid] or [wall] (the coupled tube) is not available yet", source=scene.path)
+        #: the coupled tube (docs/theory.md §10): the fluid's terms read both parts
+        self.coupled = self.tube is not None and self.rod is not None  # (a [wall] on a [rod] comes with a [fluid]: varint.scene)
         self._layout()
         self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
 
@@ -108,6 +107,8 @@ class Model:
             if scheme != "midpoint":
                 raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")
             terms.append(RodElements(self.rod, self.rod_z.start, self.nz))
+        if self.coupled:
+            terms.append(CoupledFluid(self))
         return terms
 
     @property
@@ -133,7 +134,37 @@ class Model:
             # the last step's displacement in the body frame it started from, and xi: exact for a rigid rotation
             v += [np.einsum("nji,nj->ni", r.Lam0, h * r.v0).ravel(), (h * r.omega0).ravel()]
         cat = lambda xs: np.concatenate(xs) if xs else np.empty(0)  # noqa: E731
-        return cat(q), cat(p), cat(lam), cat(v)
+        q, p, lam, v = cat(q), cat(p), cat(lam), cat(v)
+        if self.coupled:
+            legendre = self.initial_legendre()
+            p[self.rod_p.start:self.rod_p.start + 3 * (self.N + 1)] += legendre["rod_p"].ravel()
+            sl = self.tube.layout["s"]
+            p[self.tube_p][sl] = legendre["label_p"][1:-1]
+            v[self.tube_p][sl] = legendre["sdot"][1:-1]
+        return q, p, lam, v
+
+    def initial_legendre(self):
+        """The fluid's share of the initial momenta of the coupled tube (docs/theory.md §10.5, "Initial momenta").
+
+        Labels move with the rod and, relative to it, at ``fluid.velocity`` (and initial regions) along the
+        centreline: sdot_k = u_k / |X'_k|, Xdot_k = sum_i N_i(s_k) v_i + X'_k sdot_k.  Returns the nodal
+        momenta sum_k mbar_k N_j(s_k) Xdot_k (N+1, 3), the label momenta mbar_k Xdot_k . X'_k (M+1,),
+        sdot (M+1,), Xdot (M+1, 3) and the fluid's kinetic energy 1/2 sum mbar_k |Xdot_k|^2.
+        """
+        from .coupled_geometry import centreline_and_weights
+
+        t, rod = self.tube, self.rod
+        cfg = t.config(np.concatenate([t.q_init, t.lam_init]))
+        u = np.zeros(t.M + 1)
+        u[1:-1] = t.v_init[t.layout["s"]]  # the closed ends' labels do not move along the tube
+        nodes, Nw, dNw, X, dX, _ = centreline_and_weights(cfg.s, rod.r0, t.ds)
+        sdot = u / np.linalg.norm(dX, axis=1)
+        Xdot = np.einsum("ka,kac->kc", Nw, rod.v0[nodes]) + dX * sdot[:, None]
+        mbar = t.label_mass_all
+        rod_p = np.zeros((rod.N + 1, 3))
+        np.add.at(rod_p, nodes.ravel(), ((mbar[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))
+        return {"rod_p": rod_p, "label_p": mbar * np.sum(Xdot * dX, axis=1), "sdot": sdot, "Xdot": Xdot,
+                "kinetic": 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))}
 
     def upgrade_level(self, q):
         """A level vector from a checkpoint written before the rod's floating origin existed gains it."""
@@ -143,8 +174,25 @@ class Model:
 
     # -- declarations ---------------------------------------------------------------------
 
+    def declarations(self):
+        """What each term, force and end does to the invariants (varint.forces.Declaration)."""
+        decl = self.rod.declarations() if self.rod is not None else []
+        if self.coupled:
+            # docs/theory.md §10.6: the fluid's terms keep the rigid motions; its gravity breaks what the rod's does
+            decl.append(Declaration("fluid"))
+            if self.tube.has_wall:
+                decl.append(Declaration("wall"))
+        return decl
+
     def invariants(self):
         """Invariants this model keeps, derived from its terms', forces' and ends' declarations."""
+        if self.coupled:
+            base = ["energy", "linear_momentum", "angular_momentum", "mass"]
+            if self.tube.eos is not None and self.tube.eos.has_entropy:
+                base.append("parcel_entropy")
+            if self.tube.incompressible:
+                base.append("parcel_volume")
+            return derive_invariants(self.declarations(), base=base)
         if self.rod is not None:
             return derive_invariants(self.rod.declarations())
         return self.tube.invariants()
@@ -152,6 +200,19 @@ class Model:
     def describe(self):
         """Dictionary for ``varint check``: effects, unknowns, invariants, resolved numbers."""
         d = self.rod.describe() if self.rod is not None else self.tube.describe()
+        if self.coupled:
+            td = self.tube.describe()
+            d["effects"] = self.scene.effects
+            d["unknowns"] = {name: int(np.size(np.arange(self.nz)[idx])) for name, idx in self.layout.items()}
+            d["unknowns_total"] = self.nz
+            d["inertial_unknowns"] = self.nz - self.tube.nlam
+            d["algebraic_unknowns"] = self.tube.nlam
+            d["terms"] = d["terms"] + td["terms"] + ["fluid_kinetic", "fluid_potential"]
+            d["invariants"] = self.invariants()
+            d["lattice"]["parcels"] = self.tube.M
+            for k in ("wall", "fluid"):
+                if k in td:
+                    d[k] = td[k]
         d["scheme"] = self.scheme
         return d
 

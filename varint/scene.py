@@ -215,13 +215,16 @@ class Scene:
 
     @property
     def external_pressure_acts(self):
-        # p_ext only does work on a moving wall.
-        return self.wall is not None
+        # p_ext only does work on a moving wall, or on a tube whose rod stretches (docs/theory.md §10.4.2)
+        return self.wall is not None or (self.rod is not None and self.fluid is not None)
 
     @property
     def gravity_acts(self):
-        # The centreline is fixed along +x: only g_x acts, and only on fluid.
-        return self.fluid is not None and self.environment.gravity[0] != 0.0
+        # A fixed centreline lies along +x: only g_x acts, and only on fluid; a rod feels all of g.
+        g = self.environment.gravity
+        if self.rod is not None:
+            return any(x != 0.0 for x in g)
+        return self.fluid is not None and g[0] != 0.0
 
 
 def load_scene(path):
@@ -492,8 +495,15 @@ class _Validator:
 
     def rod_checks(self, sc):
         rod = sc.rod
-        if sc.fluid is not None or sc.wall is not None:
-            self.bad("rod", "the rod coupled to a [fluid] or [wall] is not available in this version; use [rod] alone")
+        if sc.fluid is not None and sc.fluid.ends.s0 == "periodic":
+            self.bad("fluid.ends", "periodic ends with a [rod] (a ring) are not available in this version; use 'closed'")
+        if sc.wall is not None and sc.fluid is None:
+            self.bad("wall", "a [wall] on a [rod] needs a [fluid] in this version (without one the wall would couple to "
+                     "the rod only through p_ext on the tube's volume, which is not implemented)")
+        if sc.tube.area_table is not None:
+            self.bad("tube.area_table", "not available with a [rod] (the coupled tube has a uniform rigid radius or a [wall])")
+        if sc.initial is not None and sc.initial.traveling_shock is not None:
+            self.bad("initial.traveling_shock", "needs a straight fixed tube: not available with a [rod]")
         if sc.time.scheme != "midpoint":
             self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme only; use 'midpoint'")
         stiff = ("mass_per_length", "rotary_inertia", "bending_stiffness", "torsional_stiffness", "axial_stiffness", "shear_stiffness")
@@ -524,9 +534,10 @@ class _Validator:
                     what = "a z component" if kind == 2 else "x or y components"
                     self.bad(key, f"a planar rod (dimension = 2) moves in the x-y plane: this vector must not have {what}")
         if sc.output.fields is not None:
+            valid = ["rod"] + [g for g, on in (("fluid", sc.fluid is not None), ("wall", sc.wall is not None)) if on]
             for f in sc.output.fields:
-                if f != "rod":
-                    self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: rod")
+                if f not in valid:
+                    self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: {', '.join(valid)}")
 
     def check_area_table(self, table, L):
         s = [p[0] for p in table]
@@ -577,8 +588,9 @@ class _Validator:
                 self.bad("fluid.pressure", f"missing (required for model = '{model}')")
             elif f.pressure <= 0 and model == "ideal-gas":
                 self.bad("fluid.pressure", f"must be > 0 for an ideal gas, got {f.pressure:g}")
-        if model == "incompressible" and sc.wall is None:
-            self.bad("fluid.model", "an incompressible fluid in a rigid tube cannot move (every parcel volume is fixed); add a [wall]")
+        if model == "incompressible" and sc.wall is None and sc.rod is None:
+            self.bad("fluid.model", "an incompressible fluid in a rigid straight tube cannot move (every parcel volume is "
+                     "fixed); add a [wall] or a [rod]")
         if model != "barotropic" and f.bulk_modulus is not None:
             self.bad("fluid.bulk_modulus", f"not used by model = '{model}'; remove it")
         e0, e1 = f.ends.s0, f.ends.sL

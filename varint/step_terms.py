@@ -177,3 +177,107 @@ class RodElements:
 
     def constant_diagonal_jacobian(self):
         return False
+
+
+class CoupledFluid:
+    """The fluid on the moving centreline (docs/theory.md §10): its kinetic energy in inertial form and its
+    midpoint potential (internal energy or incompressibility, p_ext on the tube's volume, gravity), which
+    read the rod's positions and frames and the tube's labels, radii and multipliers.
+
+    The kernels (:mod:`varint.coupled_terms`) return the level gradients per node [dr, sigma] and per
+    label/radius of the full configuration, and the Newton block in their own ordering
+    [rod 6/node | s (M+1) | R (nR) | mu (M)].  ``P`` maps that ordering to the model's step unknowns: the
+    rod's entries on the support mask, the tube's through its selection B (end labels and rigid radii are
+    data), with weight 2 on a quasistatic radius, which is the half-level value of both levels
+    (d/dR_{n+1/2} = d/dR^n + d/dR^{n+1}: twice either, the potential reads Rbar only).
+    """
+
+    name = "fluid"
+    order = 2
+
+    def __init__(self, model):
+        from .coupled_terms import FluidPotential, newton_offsets
+
+        t, rod = model.tube, model.rod
+        self.model, self.t, self.rod = model, t, rod
+        n_nodes = rod.N + 1
+        self.fp = FluidPotential(ds=t.ds, m=t.m, mbar=t.label_mass_all, eos=t.eos, S=t.S if t.eos is not None else None,
+                                 V0=t.V0 if t.incompressible else None, p_ext=t.p_ext, g=np.array(rod.g, dtype=float))
+        off, n = newton_offsets(n_nodes, t.M + 1, t.nR, t.M if t.incompressible else 0)
+        self.n_order = n
+        self.R_weight = 2.0 if t.has_wall and not t.wall_dynamic else 1.0
+        rows, cols, vals = [], [], []
+        idx = np.full((n_nodes, 6), -1)
+        idx[rod.mask] = np.arange(rod.nz)
+        j, d = np.nonzero(idx >= 0)
+        rows.append(6 * j + d)
+        cols.append(model.rod_z.start + idx[j, d])
+        vals.append(np.ones(len(j)))
+        B = t.B.tocoo()
+        i = t.index
+        helper_row = np.empty(t.nconfig, np.int64)
+        helper_row[:i["R"]] = off["s"] + np.arange(i["R"])
+        helper_row[i["R"]:i["R"] + t.nR] = off["R"] + np.arange(t.nR)
+        helper_row[i["mu"]:t.nconfig] = off["mu"] + np.arange(t.nconfig - i["mu"])
+        w = np.ones(len(B.row))
+        w[(B.row >= i["R"]) & (B.row < i["R"] + t.nR)] = self.R_weight
+        rows.append(helper_row[B.row])
+        cols.append(model.tube_z.start + B.col)
+        vals.append(w)
+        self.P = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, model.nz))
+        self.PT = self.P.T.tocsr()
+
+    def levels(self, pt):
+        """(s0, R0, s1, R1, mu, Lam1) of the step: the tube's full configurations at both levels."""
+        from .lie import cay
+
+        t = self.t
+        c0 = t.config(np.concatenate([pt.q0, pt.lam]))
+        c1 = t.config(np.concatenate([pt.q1, pt.lam]))
+        return c0.s, c0.R, c1.s, c1.R, c0.mu, pt.Lam_n @ cay(pt.xi)
+
+    def _parts(self, pt, newton=False):
+        from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
+
+        s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        pot = fluid_potential_step(self.fp, pt.h, s0, pt.r_n, pt.Lam_n, R0, s1, pt.r_1, Lam1, R1, mu=mu, newton=newton)
+        kin = fluid_kinetic_chart(s0, pt.r_n, pt.Lam_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, newton=newton)
+        return pot, kin
+
+    def value(self, pt):
+        pot, kin = self._parts(pt)
+        return pot.L + kin.L
+
+    def kinetic_value(self, pt):
+        """The fluid kinetic part of the step's L_d (h times the step's fluid kinetic energy)."""
+        from .coupled_terms import fluid_kinetic_step
+
+        s0, _, s1, _, _, _ = self.levels(pt)
+        return fluid_kinetic_step(s0, pt.r_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, hessian=False)[0]
+
+    def add(self, pt, d, level):
+        t = self.t
+        pot, kin = self._parts(pt)
+        Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
+        d.rod += Dp.rod + Dk.rod
+        gc = np.zeros(t.nconfig)
+        i = t.index
+        gc[:i["R"]] = Dp.s + Dk.s
+        gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
+        if level == 0 and t.incompressible:
+            gc[i["mu"]:] = pot.Dmu
+        gz = t.B.T @ gc
+        d.tube_q += gz[:t.nq]
+        if level == 0:
+            d.tube_lam += gz[t.nq:]
+
+    def jacobian(self, pt):
+        pot, kin = self._parts(pt, newton=True)
+        r = np.concatenate([pot.newton[0], kin.newton[0]])
+        c = np.concatenate([pot.newton[1], kin.newton[1]])
+        v = np.concatenate([pot.newton[2], kin.newton[2]])
+        Jh = sp.csr_matrix((v, (r, c)), shape=(self.n_order, self.n_order))
+        return (self.PT @ Jh @ self.P).tocsc()
+
+    def constant_diagonal_jacobian(self):
+        return False

@@ -259,9 +259,13 @@ class Simulation:
                 elif name == "R":
                     sc[sl] = t.R0
                 elif name == "mu":
-                    # the multiplier is a pressure; its round-off is set by the wall's stiffness
+                    # the multiplier is a pressure; its round-off is set by the wall's stiffness (or, in a rigid
+                    # tube on a rod, by the rod's axial stiffness per area: the liquid's volume fixes its stretch)
                     w = t.wall
-                    p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * t.R0 / (2 * np.pi)
+                    if w is None:
+                        p_wall = m.rod.section.EA / (np.pi * t.R0 ** 2)
+                    else:
+                        p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * t.R0 / (2 * np.pi)
                     sc[sl] = max(abs(m.scene.fluid.pressure), p_wall)
             off[m.tube_z] = np.asarray(abs(t.B).T @ np.abs(t.c0)).ravel()
         if m.rod is not None:
@@ -398,6 +402,8 @@ class Simulation:
 
     def monitors(self):
         """Invariants and energies at the current level (each part's, summed where they add up)."""
+        if self.model.coupled:
+            return self._coupled_monitors()
         parts = []
         if self.model.tube is not None:
             parts.append(self._tube_monitors())
@@ -492,11 +498,195 @@ class Simulation:
         out["newton_iterations"] = self.stats.iterations
         return out
 
+    # -- the coupled tube ------------------------------------------------------------
+
+    def _coupled_levels(self):
+        """(level-n configuration of the tube, rod frames, positions, origin) at the current level."""
+        m, st = self.model, self.state
+        t = m.tube
+        cfg = t.config(np.concatenate([st.q[m.tube_q], st.lam]))
+        Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
+        return cfg, Lam, r, origin
+
+    def _coupled_monitors(self):
+        """Energy, momenta, mass and entropy of the coupled tube (docs/theory.md §10.5, §10.6).
+
+        Energy: the fluid's kinetic metric depends on the labels, so the energy is that of the step that ended
+        at this level, E = K(step) + U(midpoint data) = 2 K(step) - L_d / h, with K(step) the kinetic terms'
+        share of L_d over h; record 0: the initial data's kinetic energy (the Legendre map of
+        :meth:`varint.model.Model.initial_legendre`) plus the potential at the level.  Momenta: the full nodal
+        momenta (they carry the fluid's, §10.6) about the origin and the centre of mass of rod and fluid.
+        """
+        from .coupled_geometry import centreline, stretched_volumes
+        from .coupled_terms import element_strains, stretch_map
+
+        m, st, h = self.model, self.state, self.h
+        t, rod = m.tube, m.rod
+        N = rod.N
+        cfg, Lam, r, origin = self._coupled_levels()
+        sch = self.scheme
+        fluid = next(x for x in sch.terms if x.name == "fluid")
+        out = {}
+        if t.nlam == 0 or st.q_prev is None:
+            # the level energy H(q_n, p_n): kinetic from the momenta through the kinetic metric, potential at the level
+            Kf, Kr, Kw = self._coupled_level_kinetic(cfg, Lam, r)
+            z = sch.unknowns(st.q, st.q, st.lam)
+            U = -sum(x.value(sch.point(st.q, z)) for x in sch.terms) / h
+            o_ref = origin
+        else:
+            # with half-level unknowns (multipliers, quasistatic radii) the energy of the step that ended here
+            z = sch.unknowns(st.q_prev, st.q, st.lam)
+            pt = sch.point(st.q_prev, z)
+            L = sum(x.value(pt) for x in sch.terms)
+            Kf = fluid.kinetic_value(pt) / h
+            kin = 0.5 * (rod.section.rhoA * np.sum((pt.r_1 - pt.r_n) ** 2, axis=1)
+                         + np.sum(rod.section.inertia * pt.xi * pt.xi, axis=1)) / h ** 2
+            if rod.paper_measure:  # the kernel weights each element's kinetic density by |Gammabar_e|
+                Om0, Ga0 = rod.strains(pt.Lam_n, pt.r_n)
+                Om1, Ga1 = rod.strains(pt.Lam_n @ cay(pt.xi), pt.r_1)
+                mu_e = np.linalg.norm(0.5 * (Ga0 + Ga1), axis=1)
+                Kr = float(np.sum(rod.ds * mu_e * 0.5 * (kin[:-1] + kin[1:])))
+            else:
+                Kr = float(np.sum(rod.w * kin))
+            Kw = 0.5 * float(np.sum(t.mass * st.v[m.tube_p] ** 2)) if t.wall_dynamic else 0.0
+            U = (Kf + Kr + Kw) - L / h
+            o_ref = unpack_level(st.q_prev[m.rod_q], N)[2]
+        # positions in L_d are relative to the floating origin of the step's level n: the potentials linear in r
+        # (gravity, the tip force) take the origin's part here
+        mbar = t.label_mass_all
+        M_tot = float(np.sum(rod.node_mass) + np.sum(mbar))
+        U -= M_tot * float(np.dot(rod.g, o_ref)) + float(np.dot(rod.force, o_ref))
+        out["kinetic_energy"] = Kf + Kr + Kw
+        out["energy_fluid_kinetic"] = Kf
+        out["energy_rod_kinetic"] = Kr
+        out["energy_wall_kinetic"] = Kw
+        out["energy_potential"] = U
+        out["energy"] = Kf + Kr + Kw + U
+        # mass from the state: density field times the stretched parcel volumes (incompressible: at the last
+        # step's midpoint, where the constraint holds)
+        G, _, _ = element_strains(Lam, r, t.ds)
+        gamma = stretch_map(N + 1) @ np.linalg.norm(G, axis=1)
+        V = stretched_volumes(cfg.s, cfg.R, gamma, t.ds)
+        if t.incompressible and st.q_prev is not None:
+            s0, R0, s1, R1, _, Lam1 = fluid.levels(sch.point(st.q_prev, sch.unknowns(st.q_prev, st.q, st.lam)))
+            Lp, rp, op = unpack_level(st.q_prev[m.rod_q], N)
+            G0, _, _ = element_strains(Lp, rp + op - origin, t.ds)
+            gbar = stretch_map(N + 1) @ np.linalg.norm(0.5 * (G0 + G), axis=1)
+            Vbar = stretched_volumes(0.5 * (s0 + s1), 0.5 * (R0 + R1), gbar, t.ds)
+            out["mass"] = float(np.sum(rod.node_mass) + np.sum(t.m / t.V0 * Vbar))
+            out["constraint_residual"] = float(np.max(np.abs(Vbar / t.V0 - 1.0)))
+        else:
+            rho = t.m / t.V0 if t.incompressible else t.m / V
+            out["mass"] = float(np.sum(rod.node_mass) + np.sum(rho * V))
+            if t.incompressible:
+                out["constraint_residual"] = float(np.max(np.abs(V / t.V0 - 1.0)))
+        pp = st.p[m.rod_p]
+        p = pp[: 3 * (N + 1)].reshape(N + 1, 3) * rod.mask[:, :3]
+        Pi = pp[3 * (N + 1):].reshape(N + 1, 3) * rod.mask[:, 3:]
+        P = p.sum(0)
+        spin = np.einsum("nij,nj->i", Lam, Pi)
+        out["linear_momentum"] = P
+        out["angular_momentum"] = np.cross(origin, P) + np.cross(r, p).sum(0) + spin
+        X = centreline(cfg.s, r, t.ds)[0]
+        c = (np.sum(rod.node_mass[:, None] * r, axis=0) + np.sum(mbar[:, None] * X, axis=0)) / M_tot
+        out["angular_momentum_cm"] = np.cross(r - c, p).sum(0) + spin
+        out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        if t.eos is not None:
+            out["entropy"] = float(np.sum(t.m * t.S))
+        out["newton_iterations"] = self.stats.iterations
+        return out
+
+    def _coupled_level_kinetic(self, cfg, Lam, r):
+        """(fluid, rod, wall) kinetic energy 1/2 p.M(q)^-1.p at the level, from the discrete momenta.
+
+        The kinetic metric of docs/theory.md §10.5: rho A w_j on the nodal velocities, the section inertia on
+        the body angular velocities, a w_j on the radial ones, and the fluid's 1/2 sum_k mbar_k |Xdot_k|^2,
+        Xdot_k = sum_i N_i(s_k) rdot_i + X'_k sdot_k, which couples nodes and labels.  Restricted to the
+        unknowns that move (supported components and the closed ends' labels hold none).  The fluid's share
+        is the energy of the labels' velocities Xdot that the solve gives.
+        """
+        import scipy.sparse.linalg as spla
+
+        from .coupled_geometry import centreline_and_weights
+
+        m, st = self.model, self.state
+        t, rod = m.tube, m.rod
+        N, M = rod.N, t.M
+        n1 = N + 1
+        wmu = rod.w
+        if rod.paper_measure:  # the rod's kinetic density is weighted by |Gamma_e| (RodPart.level_energy)
+            _, Ga = rod.strains(Lam, r)
+            mu = np.linalg.norm(Ga, axis=1)
+            wmu = np.zeros(n1)
+            wmu[:-1] += 0.5 * rod.ds * mu
+            wmu[1:] += 0.5 * rod.ds * mu
+        nodes, Nw, _, _, dX, _ = centreline_and_weights(cfg.s, r, t.ds)
+        k = np.repeat(np.arange(M + 1), 4)
+        # Xdot_k,c = sum_a N_a r_{nodes[k,a], c} + X'_k,c sdot_k
+        rr = (3 * k[:, None] + np.arange(3)).ravel()
+        rc = (3 * nodes.ravel()[:, None] + np.arange(3)).ravel()
+        rv = np.repeat(Nw.ravel(), 3)
+        lr = (3 * np.arange(M + 1)[:, None] + np.arange(3)).ravel()
+        lc = np.repeat(3 * n1 + np.arange(M + 1), 3)
+        lv = dX.ravel()
+        nvar = 3 * n1 + M + 1
+        Jx = sp.csr_matrix((np.concatenate([rv, lv]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
+                           shape=(3 * (M + 1), nvar))
+        mbar = np.repeat(t.label_mass_all, 3)
+        Mt = (Jx.T @ sp.diags(mbar) @ Jx).tocsr() + sp.diags(np.concatenate([np.repeat(rod.section.rhoA * wmu, 3),
+                                                                             np.zeros(M + 1)]))
+        active = np.concatenate([np.nonzero(rod.mask[:, :3].ravel())[0], 3 * n1 + np.arange(1, M)])
+        pr = st.p[m.rod_p][: 3 * n1]
+        ps = np.zeros(M + 1)
+        ps[1:-1] = st.p[m.tube_p][t.layout["s"]]
+        pa = np.concatenate([pr, ps])[active]
+        Maa = Mt[active][:, active].tocsc()
+        va = spla.spsolve(Maa, pa) if len(pa) else np.zeros(0)
+        vel = np.zeros(nvar)
+        vel[active] = va
+        Xdot = (Jx @ vel).reshape(M + 1, 3)
+        Kf = 0.5 * float(np.sum(t.label_mass_all * np.sum(Xdot * Xdot, axis=1)))
+        rdot = vel[: 3 * n1].reshape(n1, 3)
+        Pi = st.p[m.rod_p][3 * n1:].reshape(n1, 3) * rod.mask[:, 3:]
+        Kr = 0.5 * float(np.sum(rod.section.rhoA * wmu * np.sum(rdot * rdot, axis=1))
+                         + np.sum(Pi * Pi / (rod.section.inertia[None, :] * wmu[:, None])))
+        Kw = 0.0
+        if t.wall_dynamic:
+            sl = t.layout["R"]
+            pR = st.p[m.tube_p][sl]
+            Kw = 0.5 * float(np.sum(pR * pR / t.mass[sl]))
+        return Kf, Kr, Kw
+
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""
         m, st = self.model, self.state
         out = {}
         t = m.tube
+        if m.coupled:
+            from .coupled_geometry import centreline, centreline_and_weights, stretched_volumes
+            from .coupled_terms import element_strains, stretch_map
+
+            cfg, Lam, r, origin = self._coupled_levels()
+            G, _, _ = element_strains(Lam, r, t.ds)
+            V = stretched_volumes(cfg.s, cfg.R, stretch_map(m.N + 1) @ np.linalg.norm(G, axis=1), t.ds)
+            rho = t.m / t.V0 if t.incompressible else t.m / V
+            out["fluid/s"] = cfg.s.copy()
+            out["fluid/position"] = centreline(cfg.s, r, t.ds)[0] + origin
+            out["fluid/density"] = rho
+            out["fluid/pressure"] = cfg.mu.copy() if t.incompressible else t.eos.pressure(rho, t.S)
+            # the speed along the tube relative to it, |X'| ds/dt, of the last step (closed ends: 0)
+            u = np.zeros(t.M + 1)
+            u[1:-1] = st.v[m.tube_p][t.layout["s"]]
+            u *= np.linalg.norm(centreline_and_weights(cfg.s, r, t.ds)[4], axis=1)
+            out["fluid/velocity"] = u
+            out["fluid/entropy"] = t.S.copy()
+            if t.has_wall:
+                out["wall/R"] = t.full_radius(cfg)
+                if t.wall_dynamic:
+                    out["wall/velocity"] = st.v[m.tube_p][t.layout["R"]].copy()
+            out["rod/r"] = r + origin
+            out["rod/Lambda"] = Lam.copy()
+            return out
         if t is not None:
             q = st.q[m.tube_q]
             cfg = t.config(np.concatenate([q, st.lam]))

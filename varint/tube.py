@@ -87,6 +87,9 @@ class TubePart:
         self.wall = wall_parameters(scene.wall, self.R0) if self.has_wall else None
         self.p_ext = scene.environment.external_pressure
         self.gx = scene.environment.gravity[0]
+        #: part of the coupled tube (docs/theory.md §10): the fluid's kinetic and potential terms and p_ext read
+        #: the rod too and are step terms of the model (varint.step_terms.CoupledFluid); this part keeps the wall's
+        self.coupled = scene.rod is not None
         self._layout()
         self._initial_state()
         self._terms()
@@ -215,6 +218,11 @@ class TubePart:
             else:
                 mass[self.layout["s"]] = lab[1:]
                 self.label_mass_config[1:-1] = lab[1:]
+            #: label masses of every label, the closed ends' included (m_0/2, m_{M-1}/2): on the coupled tube the
+            #: end labels move with the rod's end nodes and keep their kinetic energy (docs/theory.md §10.1)
+            self.label_mass_all = np.concatenate([[0.5 * m[0]], 0.5 * (m[:-1] + m[1:]), [0.5 * m[-1]]])
+            if self.coupled:  # the labels' kinetic energy is the coupled term's, not a diagonal mass
+                mass[self.layout["s"]] = 0.0
         if self.wall_dynamic:
             mass[self.layout["R"]] = self.wall.a * self.node_weights
         return mass
@@ -225,7 +233,7 @@ class TubePart:
         terms = []
         uniform_rigid = not self.has_wall and self.scene.tube.area_table is None
         geom = (self.ds, self.periodic, self.has_wall)
-        if self.has_fluid:
+        if self.has_fluid and not self.coupled:
             if self.incompressible:
                 terms.append(T.Incompressibility(geom, self.V0, uniform_rigid))
             else:
@@ -238,7 +246,7 @@ class TubePart:
                 terms.append(T.WallLinear(self.ds, self.node_weights, self.periodic, w.beta1, w.beta2, self.R0))
             else:
                 terms.append(T.WallTubeLaw(self.ds, self.node_weights, self.periodic, w.stiffness, w.tension, self.R0))
-            if self.p_ext != 0.0:
+            if self.p_ext != 0.0 and not self.coupled:
                 terms.append(T.ExternalPressure(self.ds, self.periodic, self.p_ext))
         self.terms = terms
 
