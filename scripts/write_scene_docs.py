@@ -10,7 +10,9 @@ from varint.scene import NOT_YET, REQUIRED, SCHEMA, _num
 HEADER = """# Scene files
 
 A scene is a TOML file in SI units. Its sections switch effects on (docs/theory.md): a scene without
-`[wall]` has a rigid wall and no radius unknowns; without `[fluid]` it has no labels. Unknown keys
+`[wall]` has a rigid wall and no radius unknowns; without `[fluid]` it has no labels; without `[rod]`
+the centreline is fixed and straight along x, with `[rod]` and `[fluid]` the fluid rides the moving rod
+(the coupled tube, docs/theory.md §10; closed ends; a `[wall]` on a `[rod]` needs a `[fluid]`). Unknown keys
 are errors (the nearest valid key is suggested); every problem is reported as one line
 `key.path: what is wrong`. `varint check SCENE.toml` prints the resolved parameters, the effects,
 the unknowns and the expected invariants.

@@ -276,3 +276,19 @@ def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
                                    sec["rotary_inertia"], L, count=1)[0]
     assert f_coupled == pytest.approx(f_rod, rel=1e-6)
     assert f_coupled == pytest.approx(f_beam, rel=1e-3)
+
+
+@pytest.mark.parametrize("command", ["modes", "static"])
+def test_modes_and_statics_of_the_coupled_tube_are_refused_in_one_line(command, tmp_path):
+    """Not silently the rod's alone: the coupled tube's linearisation needs the fluid's kinetic metric."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    scene = Path(__file__).resolve().parent.parent / "examples" / "water_filled_hose.toml"
+    args = [sys.executable, "-m", "varint", command, str(scene)] + (["-o", str(tmp_path / "s.h5")] if command == "static" else [])
+    out = subprocess.run(args, capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and ("coupled tube" in lines[0] or "without [fluid]" in lines[0]), out.stderr
+    assert "Traceback" not in out.stderr

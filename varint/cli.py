@@ -167,8 +167,8 @@ def cmd_static(args):
     out = args.output or default_output(scene, args.scene, kind="static")
     check_output(out, args.scene, force=args.force, resumable=False)
     model = build_model(scene)
-    if model.rod is None:
-        raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes only in this version")
+    if model.rod is None or model.coupled:
+        raise _VE(f"{args.scene}: static equilibrium is available for [rod] scenes without [fluid] only in this version")
     spinning = bool(np.any(model.rod.spin))
     Lam, r, info = static_equilibrium(model, spin=model.rod.spin if spinning else None)
     # the steady rotation: its shape with the momenta of the rigid rotation; a static equilibrium: at rest

@@ -44,6 +44,9 @@ def scene_modes(scene, count=20, about="initial", source=None):
     source = source if source is not None else (scene.path or "scene")
     model = build_model(scene)
     d = {"about": about}
+    if model.coupled:
+        raise VarintError(f"{source}: modes of the coupled tube ([rod] with [fluid]) are not available in this version "
+                          "(the linearisation needs the fluid's kinetic metric); run the scene instead")
     if model.rod is not None:
         spin = model.rod.spin  # rod.initial.angular_velocity
         if about == "static":

@@ -162,7 +162,7 @@ SCHEMA = MappingProxyType({
     "output": (
         Key("file", "str", None, "", "HDF5 run file (default: the scene name with .h5)"),
         Key("every", "int", 1, "", "write every this many steps", low=1),
-        Key("fields", "strlist", None, "", "field groups to write (default all of the model's): fluid, wall (tube scenes) or rod ([rod] scenes)"),
+        Key("fields", "strlist", None, "", "field groups to write (default all of the model's): fluid, wall, rod (the groups of the scene's effects)"),
     ),
 })
 

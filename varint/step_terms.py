@@ -236,28 +236,45 @@ class CoupledFluid:
         c1 = t.config(np.concatenate([pt.q1, pt.lam]))
         return c0.s, c0.R, c1.s, c1.R, c0.mu, pt.Lam_n @ cay(pt.xi)
 
+    def _valid(self, s):
+        """Labels ordered and inside the tube (the kernels extrapolate outside it: a Newton iterate there could
+        converge to a spurious root; NaN makes Newton back off or fail cleanly instead, as on the fixed tube)."""
+        from .geometry import label_problem
+
+        t = self.t
+        return label_problem(s, t.nR, t.ds, t.periodic) is None
+
     def _parts(self, pt, newton=False):
         from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
 
         s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        if not (self._valid(s0) and self._valid(s1)):
+            return None, None
         pot = fluid_potential_step(self.fp, pt.h, s0, pt.r_n, pt.Lam_n, R0, s1, pt.r_1, Lam1, R1, mu=mu, newton=newton)
         kin = fluid_kinetic_chart(s0, pt.r_n, pt.Lam_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, newton=newton)
         return pot, kin
 
     def value(self, pt):
         pot, kin = self._parts(pt)
-        return pot.L + kin.L
+        return np.nan if pot is None else pot.L + kin.L
 
     def kinetic_value(self, pt):
         """The fluid kinetic part of the step's L_d (h times the step's fluid kinetic energy)."""
         from .coupled_terms import fluid_kinetic_step
 
         s0, _, s1, _, _, _ = self.levels(pt)
+        if not (self._valid(s0) and self._valid(s1)):
+            return np.nan
         return fluid_kinetic_step(s0, pt.r_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, hessian=False)[0]
 
     def add(self, pt, d, level):
         t = self.t
         pot, kin = self._parts(pt)
+        if pot is None:
+            d.rod += np.nan
+            d.tube_q += np.nan
+            d.tube_lam += np.nan
+            return
         Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
         d.rod += Dp.rod + Dk.rod
         gc = np.zeros(t.nconfig)
@@ -273,6 +290,8 @@ class CoupledFluid:
 
     def jacobian(self, pt):
         pot, kin = self._parts(pt, newton=True)
+        if pot is None:
+            return sp.diags(np.full(self.model.nz, np.nan)).tocsc()
         r = np.concatenate([pot.newton[0], kin.newton[0]])
         c = np.concatenate([pot.newton[1], kin.newton[1]])
         v = np.concatenate([pot.newton[2], kin.newton[2]])
