@@ -55,7 +55,27 @@ def derive_invariants(declarations, base=BASE_INVARIANTS):
     return kept
 
 
-class TipTorque:
+class Force:
+    """What the stepper asks of a non-conservative force (discrete Lagrange–d'Alembert, docs/theory.md §4a).
+
+    ``declaration``: the invariants it breaks.  ``add(pt, d, level)``: add f^- (level 0) or f^+ (level 1)
+    at the step's two levels ``pt`` (:class:`varint.step_terms.StepPoint`; ``pt.Lam_1`` holds the new
+    frames when level 1 is asked) into ``d`` (:class:`varint.step_terms.Derivatives`), in the blocks'
+    variations.  ``jacobian(pt)``: d f^-/d(step unknowns) as a sparse (nz, nz) matrix, or None when f^-
+    does not depend on them.  Optional ``after_step(pt)``: update data the force changes once a step is
+    accepted (e.g. the parcels' entropy heated by a viscosity), returned by the model as state data.
+    """
+
+    declaration = None
+
+    def add(self, pt, d, level):
+        raise NotImplementedError
+
+    def jacobian(self, pt):
+        return None
+
+
+class TipTorque(Force):
     """A dead (spatially fixed) torque T at the tip s = L of a rod.
 
     Not the gradient of a potential on SO(3), so it enters by Lagrange–d'Alembert: with the tip frame
@@ -72,6 +92,15 @@ class TipTorque:
     def body(self, Lam):
         """The torque in the tip's body frame, Lambda_N^T T."""
         return Lam[-1].T @ self.torque
+
+    def add(self, pt, d, level):
+        """Add f^- (``level`` 0, level-n frames) or f^+ (1, level n+1) into the step's derivatives ``d``
+        (the stepper's interface: varint.step_terms.StepPoint, Derivatives)."""
+        d.rod += self.discrete(pt.h, pt.Lam_n if level == 0 else pt.Lam_1)
+
+    def jacobian(self, pt):
+        """d f^- / d(step unknowns): f^- reads level n only."""
+        return None
 
     def discrete(self, h, Lam):
         """f^- (with the level-n frames) or f^+ (level n+1): (N+1, 6), zero but at the tip's sigma."""

@@ -305,6 +305,13 @@ class RunWriter:
                             del g[stale]
                     continue
                 _put_vector(g, name, np.asarray(val))
+            for name in [k for k in g if k.startswith("data_") and not k.endswith("_index")]:
+                if not state.data or name[5:] not in state.data:
+                    del g[name]
+                    if f"{name}_index" in g:
+                        del g[f"{name}_index"]
+            for name, val in (state.data or {}).items():  # what forces change as the run goes (State.data)
+                _put_vector(g, f"data_{name}", np.asarray(val))
             g.attrs["n"] = state.n
             g.attrs["t"] = state.t
             g.attrs["records"] = k + 1
@@ -357,7 +364,8 @@ def read_checkpoint(f):
     if "q" not in src:
         raise OutputError("the run file has no checkpoint yet; start the run again without --resume")
     get = lambda n: src[n][...] if n in src else None  # noqa: E731
-    return State(int(src.attrs["n"]), float(src.attrs["t"]), get("q"), get("p"), get("lam"), get("v"), get("q_prev"))
+    data = {k[5:]: src[k][...] for k in src if k.startswith("data_") and not k.endswith("_index")} or None
+    return State(int(src.attrs["n"]), float(src.attrs["t"]), get("q"), get("p"), get("lam"), get("v"), get("q_prev"), data)
 
 
 def read_run(path):

@@ -65,6 +65,8 @@ class Model:
         #: the coupled tube (docs/theory.md §10): the fluid's terms read both parts
         self.coupled = self.tube is not None and self.rod is not None  # (a [wall] on a [rod] comes with a [fluid]: varint.scene)
         self._layout()
+        #: non-conservative forces (discrete Lagrange-d'Alembert, varint.forces.Force), every part's
+        self.forces = [f for part in (self.tube, self.rod) if part is not None for f in getattr(part, "forces", [])]
         self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
 
     # -- layout -----------------------------------------------------------------------
@@ -111,10 +113,20 @@ class Model:
             terms.append(CoupledFluid(self))
         return terms
 
-    @property
-    def forces(self):
-        """Non-conservative forces (discrete Lagrange-d'Alembert, varint.forces)."""
-        return list(self.rod.forces) if self.rod is not None else []
+    def state_data(self):
+        """Data that forces change as the run goes (e.g. the parcels' entropy under a heating viscosity):
+        ``{name: array}`` stored with each state (``State.data``, checkpoints), or None when nothing does."""
+        data = {}
+        for part in (self.tube, self.rod):
+            if part is not None and hasattr(part, "evolving_data"):
+                data.update(part.evolving_data())
+        return data or None
+
+    def set_state_data(self, data):
+        """Restore what :meth:`state_data` returned (a resumed run continues with the heated entropies)."""
+        for part in (self.tube, self.rod):
+            if part is not None and hasattr(part, "set_evolving_data"):
+                part.set_evolving_data(data)
 
     # -- initial state -------------------------------------------------------------------
 

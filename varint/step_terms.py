@@ -36,6 +36,7 @@ class StepPoint:
     r_n: np.ndarray | None = None  #: rod positions at level n (relative to the floating origin)
     xi: np.ndarray | None = None  #: cay^-1(Lambda_n^T Lambda_{n+1}) per node
     r_1: np.ndarray | None = None  #: rod positions at level n+1
+    Lam_1: np.ndarray | None = None  #: rod frames at level n+1, re-orthonormalised (set when f^+ is asked)
 
 
 class Derivatives:

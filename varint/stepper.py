@@ -122,49 +122,49 @@ class Step:
             t.add(pt, d, level)
         return d
 
-    def _forces(self, Lam):
-        rod = self.model.rod
-        f = np.zeros((rod.N + 1, 6))
-        for force in self.model.forces:
-            f += force.discrete(self.h, Lam)
-        return f
-
     def residual(self, q0, p0, z):
         """[p_n + D1 L_d + f^- ; D_lam L_d] at z (rod translational rows in the level-n body frames)."""
         m = self.model
         pt = self.point(q0, z)
         d = self._derivatives(pt, 0)
+        for force in m.forces:
+            force.add(pt, d, 0)
         parts = []
         if m.tube is not None:
             parts += [p0[m.tube_p] + d.tube_q, d.tube_lam]
         if m.rod is not None:
             rod = m.rod
             pi_n = p0[m.rod_p].reshape(2, rod.N + 1, 3).transpose(1, 0, 2).reshape(rod.N + 1, 6)
-            R = pi_n + d.rod + self._forces(pt.Lam_n)
+            R = pi_n + d.rod
             R[:, :3] = np.einsum("nji,nj->ni", pt.Lam_n, R[:, :3])
             parts.append(R[rod.mask])
         return np.concatenate(parts) if parts else np.empty(0)
 
     def jacobian(self, q0, z):
-        """Exact d(residual)/dz: the sum of the terms' blocks (the forces' f^- do not depend on z)."""
+        """Exact d(residual)/dz: the sum of the terms' blocks and of the forces' (None when a force's f^-
+        reads level n only)."""
         pt = self.point(q0, z)
         J = None
-        for t in self.terms:
+        for t in list(self.terms) + self.model.forces:
             b = t.jacobian(pt)
-            J = b if J is None else J + b
+            if b is not None:
+                J = b if J is None else J + b
         return sp.csc_matrix(J) if J is not None else sp.csc_matrix((0, 0))
 
     def momentum_plus(self, q0, z):
         """p_{n+1} = D2 L_d + f^+ (the rod's on every node)."""
         m = self.model
         pt = self.point(q0, z)
+        if m.rod is not None:
+            pt.Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
         d = self._derivatives(pt, 1)
+        for force in m.forces:
+            force.add(pt, d, 1)
         parts = []
         if m.tube is not None:
             parts.append(d.tube_q)
         if m.rod is not None:
-            D2 = d.rod + self._forces(reorthonormalize(pt.Lam_n @ cay(pt.xi)))
-            parts += [D2[:, :3].ravel(), D2[:, 3:].ravel()]
+            parts += [d.rod[:, :3].ravel(), d.rod[:, 3:].ravel()]
         return np.concatenate(parts) if parts else np.empty(0)
 
     def step_energies(self, q0, z):
@@ -196,10 +196,13 @@ class State:
     lam: np.ndarray
     v: np.ndarray
     q_prev: np.ndarray | None = None  #: q_{n-1}, to evaluate the last step's energy
+    #: data that forces change as the run goes, by name (:meth:`varint.model.Model.state_data`), or None
+    data: dict | None = None
 
     def copy(self):
         return State(self.n, self.t, self.q.copy(), self.p.copy(), self.lam.copy(), self.v.copy(),
-                     None if self.q_prev is None else self.q_prev.copy())
+                     None if self.q_prev is None else self.q_prev.copy(),
+                     None if self.data is None else {k: np.array(v, copy=True) for k, v in self.data.items()})
 
 
 @dataclass
@@ -222,7 +225,7 @@ class Simulation:
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
-        self.state = state if state is not None else State(0, 0.0, *model.initial_state(self.h))
+        self.state = state if state is not None else State(0, 0.0, *model.initial_state(self.h), data=model.state_data())
         self.stats = StepStats()
         self._factor = None
         self.scale, self.offset = self._scales()
@@ -243,6 +246,8 @@ class Simulation:
         st.q = self.model.upgrade_level(st.q)
         if st.q_prev is not None:
             st.q_prev = self.model.upgrade_level(st.q_prev)
+        if st.data:
+            self.model.set_state_data(st.data)
         self._state = st
 
     def _scales(self):
@@ -377,10 +382,15 @@ class Simulation:
                 raise SolverError(f"{self._where(n1)}: node {j} turns by {deg:.0f} degrees in one "
                                   "step (more than 90); reduce time.step", step=n1, time=n1 * self.h)
         p1 = self.scheme.momentum_plus(st.q, z)
+        if m.forces:
+            pt = self.scheme.point(st.q, z)
+            for force in m.forces:
+                if hasattr(force, "after_step"):  # e.g. a viscosity heating the parcels it slowed
+                    force.after_step(pt)
         q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin)
         v = self._step_velocity(st.q, z)
         lam = z[m.tube_z][m.tube.nq:].copy() if m.tube is not None else np.empty(0)
-        self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy())
+        self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), m.state_data())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = iters, nres, njac
         s.total_iterations += iters

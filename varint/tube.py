@@ -90,6 +90,8 @@ class TubePart:
         #: part of the coupled tube (docs/theory.md §10): the fluid's kinetic and potential terms and p_ext read
         #: the rod too and are step terms of the model (varint.step_terms.CoupledFluid); this part keeps the wall's
         self.coupled = scene.rod is not None
+        #: non-conservative forces on the tube's blocks (discrete Lagrange-d'Alembert, varint.forces.Force)
+        self.forces = []
         self._layout()
         self._initial_state()
         self._terms()
