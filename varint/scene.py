@@ -159,6 +159,13 @@ SCHEMA = MappingProxyType({
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
     ),
+    "shock_capturing": (
+        Key("quadratic", "float", 1.0, "", "c_Q of the von Neumann-Richtmyer viscous pressure Q = rho (c_Q^2 du^2 + c_L c abs(du)), "
+            "acting in compression only (du < 0: the jump of the step's label velocity across a parcel); c_Q sets the "
+            "shock's width in parcels (docs/theory.md, Shock capturing). Needs an ideal gas in a rigid uniform tube "
+            "(no [wall], [rod] or tube.area_table) and the midpoint scheme", low=0.0),
+        Key("linear", "float", 0.5, "", "c_L of the linear (Landshoff) part of Q: damps the ringing behind the shock", low=0.0),
+    ),
     "output": (
         Key("file", "str", None, "", "HDF5 run file (default: the scene name with .h5)"),
         Key("every", "int", 1, "", "write every this many steps", low=1),
@@ -166,9 +173,7 @@ SCHEMA = MappingProxyType({
     ),
 })
 
-NOT_YET = {
-    "shock_capturing": "shock capturing is not available in this version; remove the section",
-}
+NOT_YET = {}
 
 
 class Section(dict):
@@ -193,6 +198,7 @@ class Scene:
     fluid: Section | None = None
     rod: Section | None = None
     initial: Section | None = None
+    shock_capturing: Section | None = None
     text: str = ""
     path: str | None = None
     derived: dict = field(default_factory=dict)
@@ -412,8 +418,9 @@ class _Validator:
             if "traveling_shock" in ri:
                 initial = Section(traveling_shock=self.section(ri["traveling_shock"], "initial.traveling_shock",
                                                                 "initial.traveling_shock"))
+        shock = self.section(raw["shock_capturing"], "shock_capturing", "shock_capturing") if "shock_capturing" in raw else None
         scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall,
-                      fluid=fluid, rod=rod, initial=initial)
+                      fluid=fluid, rod=rod, initial=initial, shock_capturing=shock)
         if not self.problems:
             self.cross_checks(scene)
         return scene
@@ -454,6 +461,24 @@ class _Validator:
             self.bad("output.file", "must not be empty")
         if sc.initial is not None and sc.initial.traveling_shock is not None and not self.problems:
             self.traveling_shock_checks(sc)
+        if sc.shock_capturing is not None:
+            self.shock_capturing_checks(sc)
+
+    def shock_capturing_checks(self, sc):
+        """``[shock_capturing]`` is energy-exact only where parcel volumes are linear in the labels and the
+        heating has a closed form: an ideal gas in a rigid uniform straight tube, midpoint scheme
+        (varint.shock_capturing)."""
+        kp = "shock_capturing"
+        if sc.fluid is None or sc.fluid.model != "ideal-gas":
+            self.bad(kp, "needs a [fluid] with model = 'ideal-gas' (the viscous work heats the gas)")
+        elif sc.wall is not None:
+            self.bad(kp, "not available with a [wall] in this version (energy-exact only in a rigid uniform tube)")
+        elif sc.rod is not None:
+            self.bad(kp, "not available with a [rod] in this version (energy-exact only in a rigid uniform tube)")
+        elif sc.tube.area_table is not None:
+            self.bad(kp, "not available with tube.area_table in this version (energy-exact only in a rigid uniform tube)")
+        elif sc.time.scheme != "midpoint":
+            self.bad("time.scheme", "[shock_capturing] needs 'midpoint' (its viscous pressure is implicit)")
 
     def traveling_shock_checks(self, sc):
         """``[initial.traveling_shock]``: a straight tube with a linear wall and an ideal gas at rest, closed ends.

@@ -95,6 +95,13 @@ class TubePart:
         self._layout()
         self._initial_state()
         self._terms()
+        #: [shock_capturing]: viscous pressure, energy-exact pressure and heating (varint.shock_capturing)
+        self.shock_capturing = None
+        if getattr(scene, "shock_capturing", None) is not None:
+            from .shock_capturing import ShockCapturing
+
+            self.shock_capturing = ShockCapturing(self, scene.shock_capturing)
+            self.forces.append(self.shock_capturing)
 
     # -- layout -------------------------------------------------------------
 
@@ -158,6 +165,17 @@ class TubePart:
     @property
     def unknown_names(self):
         return list(self.layout)
+
+    # -- data the forces change (State.data, checkpoints) ------------------------------
+
+    def evolving_data(self):
+        """``{"S": parcel entropies}`` when a viscosity heats the parcels ([shock_capturing]), else ``{}``."""
+        return {"S": self.S.copy()} if self.shock_capturing is not None else {}
+
+    def set_evolving_data(self, data):
+        """Restore :meth:`evolving_data` (in place: the internal-energy term holds this array)."""
+        if self.shock_capturing is not None and data and "S" in data:
+            self.S[:] = data["S"]
 
     # -- initial state ------------------------------------------------------
 
