@@ -48,6 +48,7 @@ nodes e0-1..e1+2; gravity: label k and its 4 centreline nodes).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import NamedTuple
@@ -341,7 +342,7 @@ def _potential_in_y(fp, sbar, Rbar, gamma, mu, want_hessian):
     return U, grad, H
 
 
-def fluid_potential_step(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu=None, newton=False):
+def fluid_potential_step(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu=None, newton=False, fast=True):
     """The fluid's potential part of one step's L_d (midpoint, §10.4.2) with exact derivatives.
 
     Parameters
@@ -358,7 +359,18 @@ def fluid_potential_step(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu=None, new
     StepTerm(L, D1, D2, Dmu, newton): D1, D2 are :class:`LevelGradient` of the level-n and level-(n+1)
     variations (r -> r + dr spatial, Lambda -> Lambda cay(sigma), s, R); Dmu = dL/dmu = h (Vbar - V0);
     newton = (rows, cols, vals) in the ordering [rod 6/node | s | R | mu] (duplicates summed).
+
+    ``fast`` (default) runs the compiled kernels (:func:`_potential_fast`); ``fast=False`` the NumPy/scipy
+    reference (:func:`_potential_numpy`), which the tests compare them with.  Both give the same numbers to
+    round-off, and the same errors for labels off the tube.
     """
+    if fast:
+        return _potential_fast(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu, newton)
+    return _potential_numpy(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu, newton)
+
+
+def _potential_numpy(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu, newton):
+    """:func:`fluid_potential_step` with NumPy arrays and scipy sparse products (the reference)."""
     s0, s1, R0, R1 = (np.asarray(x, dtype=np.float64) for x in (s0, s1, R0, R1))
     r0, r1, Lam0, Lam1 = (np.asarray(x, dtype=np.float64) for x in (r0, r1, Lam0, Lam1))
     mu = None if mu is None else np.asarray(mu, dtype=np.float64)
@@ -499,15 +511,23 @@ def _gravity_newton(fp, h, Lam0, nodes, dNw, d2Xb, g, n_nodes, n_lab, nR):
     return rows, cols, vals
 
 
-def fluid_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic=False, period=None, newton=False):
+def fluid_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic=False, period=None, newton=False, fast=True):
     """:func:`fluid_kinetic_step` in the stepper's layout: ``StepTerm(L, D1, D2, None, newton)``.
 
     The kinetic term reads positions only, so its sigma entries are zero and its Newton block has no xi
     columns; the b columns are d/dr^{n+1} Lambda_j^n and the translational rows are rotated by
     Lambda_j^nT, as for the potential (ordering [rod 6/node | s | R | mu]; R and mu rows/columns empty;
     ``nR`` is not known here, so the s block's offset is 6 n_nodes and the returned shape stops there:
-    indices are valid in the full ordering of :func:`newton_offsets`).
+    indices are valid in the full ordering of :func:`newton_offsets`).  ``fast``: the compiled kernel
+    :func:`_k_kinetic_chart` (default) or the NumPy reference :func:`_kinetic_chart_numpy`.
     """
+    if fast:
+        return _kinetic_chart_fast(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton)
+    return _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton)
+
+
+def _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton):
+    """:func:`fluid_kinetic_chart` from :func:`fluid_kinetic_step`'s label-local Hessians (the reference)."""
     Lam0 = np.asarray(Lam0, dtype=np.float64)
     n_nodes, n_lab = len(r0), len(s0)
     L, index, grad, hess = fluid_kinetic_step(s0, r0, s1, r1, mbar, h, ds, periodic, period, hessian=newton)
@@ -547,3 +567,705 @@ def fluid_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic=False, perio
         block = (np.broadcast_to(ridx[:, :, None], B.shape).ravel(), np.broadcast_to(cidx[:, None, :], B.shape).ravel(),
                  B.ravel())
     return StepTerm(L, levels[0], levels[1], None, block)
+
+
+# ---------------------------------------------------------------------------
+# compiled path (numba): the same chain rule, written per element, parcel and label
+#
+# The NumPy path above chains sparse matrices (about 20 scipy products and conversions per Newton block,
+# each with its Python overhead).  The kernels below do the same algebra in loops: the gradient in two
+# calls around the equation of state (a Python object), the Newton block in one call that writes the
+# y-space Hessian, the column map Y = dy/du and the row map (the rows of D1 and D_mu as combinations of
+# dU/dy) as short CSR lists and multiplies them out with a marker-array sparse product (Gustavson's
+# algorithm), so every entry of the block is produced once, duplicates summed:
+#
+#     J = Ry^T (Hy Y) + per-element terms,
+#
+# with, per y-index: label k -> row (s_k, -h/2), column (s_k^{n+1}, 1/2); radius j -> (R_j, -h/2), (R_j, 1/2);
+# stretch gamma_j -> sum over the elements e at node j of T_je times the element's 12 rod rows
+# rho_e = -h/2 A^nT_e ghat_e (translations rotated by Lambda^nT) and 12 chart columns
+# kappa_e = 1/2 ghat_e^T A^{n+1}_e B_e (B_e the chart map of `_chart_columns`); mu_k -> (mu_k, -h), (mu_k, 1).
+# The per-element term is the derivative of ghat_e: -h/4 A^nT_e (I - ghat ghat^T) (dU/dG_e / G_e) A^{n+1}_e B_e.
+# These are the factors of `_potential_newton` (Yfix + Ygam, Ghat T^T, Pblk Csp, AT), element by element.
+
+from numba import njit  # noqa: E402
+
+from .coupled_geometry import _k_centreline_weights, _k_stretched_derivatives  # noqa: E402
+
+_EPS = np.finfo(float).eps
+
+
+def _period_vector(n_nodes, ds, period):
+    """The shift d of a periodic tube as a (3,) array (default L e_1, as `_topology`)."""
+    if period is None:
+        return np.array([n_nodes * ds, 0.0, 0.0])
+    return np.ascontiguousarray(period, dtype=np.float64).reshape(3)
+
+
+@njit(cache=True)
+def _k_labels_ok(s, n_nodes, ds, periodic, increasing, on_centreline):
+    """True when the compiled kernels may read labels ``s``: finite; strictly increasing with a periodic
+    span of at most two periods (``increasing``: what `label_problem(tube=False)` asks of the volumes);
+    on a closed centreline of at least 3 nodes within round-off (``on_centreline``: what
+    `centreline_weights` asks).  False sends the call to the NumPy path, which raises the precise error."""
+    n = s.shape[0]
+    L = ds * (n_nodes if periodic else n_nodes - 1)
+    for k in range(n):
+        if not np.isfinite(s[k]):
+            return False
+    if increasing:
+        for k in range(n - 1):
+            if not s[k + 1] > s[k]:
+                return False
+        if periodic and n > 0 and s[n - 1] - s[0] > 2.0 * L:
+            return False
+    if on_centreline and not periodic:
+        if n_nodes < 3:
+            return False
+        for k in range(n):
+            if s[k] < -8.0 * _EPS * L or s[k] > L * (1.0 + 8.0 * _EPS):
+                return False
+    return True
+
+
+@njit(cache=True)
+def _stretch_weight(j, n_nodes, periodic):
+    """T_je for j an end node of element e: the element's share of the nodal stretch gamma_j (§10.3,
+    `stretch_map`): 1/2, but 1 at a closed tube's end nodes, which have one element only."""
+    if not periodic and (j == 0 or j == n_nodes - 1):
+        return 1.0
+    return 0.5
+
+
+@njit(cache=True)
+def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
+    """`element_strains` into pa, pb, G (n_el, 3)."""
+    n = r.shape[0]
+    dr = np.empty(3)
+    for e in range(pa.shape[0]):
+        b = (e + 1) % n
+        for i in range(3):
+            dr[i] = r[b, i] - r[e, i]
+            if periodic and e == pa.shape[0] - 1:
+                dr[i] += period[i]
+        for i in range(3):
+            xa = 0.0
+            xb = 0.0
+            for k in range(3):
+                xa += Lam[e, k, i] * dr[k]
+                xb += Lam[b, k, i] * dr[k]
+            pa[e, i] = xa
+            pb[e, i] = xb
+            G[e, i] = 0.5 * (xa + xb) / ds
+
+
+@njit(cache=True)
+def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period):
+    """Midpoint data, strains, stretches and the parcel volumes with their local derivatives:
+    ``(sbar, Rbar, rbar, pa0, pb0, pa1, pb1, Gn, ghat, gamma, V, index, gV, HV)`` as in `_potential_numpy`
+    (index, gV, HV: `stretched_volume_derivatives`)."""
+    n = r0.shape[0]
+    n_el = n if periodic else n - 1
+    pa0 = np.empty((n_el, 3))
+    pb0 = np.empty((n_el, 3))
+    pa1 = np.empty((n_el, 3))
+    pb1 = np.empty((n_el, 3))
+    G0 = np.empty((n_el, 3))
+    G1 = np.empty((n_el, 3))
+    _k_element_strains(Lam0, r0, ds, periodic, period, pa0, pb0, G0)
+    _k_element_strains(Lam1, r1, ds, periodic, period, pa1, pb1, G1)
+    Gn = np.empty(n_el)
+    ghat = np.empty((n_el, 3))
+    gamma = np.zeros(n)
+    for e in range(n_el):
+        x = 0.0
+        for i in range(3):
+            ghat[e, i] = 0.5 * (G0[e, i] + G1[e, i])
+            x += ghat[e, i] * ghat[e, i]
+        Gn[e] = math.sqrt(x)
+        for i in range(3):
+            ghat[e, i] /= Gn[e]
+        for j in (e, (e + 1) % n):
+            gamma[j] += _stretch_weight(j, n, periodic) * Gn[e]
+    sbar = 0.5 * (s0 + s1)
+    Rbar = 0.5 * (R0 + R1)
+    rbar = 0.5 * (r0 + r1)
+    nR = Rbar.shape[0]
+    M = sbar.shape[0] - 1
+    span = 1
+    for k in range(M):
+        e0 = int(math.floor(sbar[k] / ds))
+        e1 = int(math.floor(sbar[k + 1] / ds))
+        if not periodic:
+            e0 = min(max(e0, 0), nR - 2)
+            e1 = min(max(e1, 0), nR - 2)
+        span = max(span, e1 - e0 + 1)
+    n_loc_nodes = span + 1
+    n_loc = 2 + 2 * n_loc_nodes
+    V = np.empty(M)
+    index = np.full((M, n_loc), -1, np.int64)
+    gV = np.zeros((M, n_loc))
+    HV = np.zeros((M, n_loc, n_loc))
+    _k_stretched_derivatives(sbar, Rbar, gamma, ds, periodic, n_loc_nodes, V, index, gV, HV)
+    return sbar, Rbar, rbar, pa0, pb0, pa1, pb1, Gn, ghat, gamma, V, index, gV, HV
+
+
+@njit(cache=True)
+def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds):
+    """`_rod_gradient` of one element: A_e^T gG into nodes a, b of out (n_nodes, 6)."""
+    c = 0.5 / ds
+    for i in range(3):
+        f = 0.0
+        for k in range(3):
+            f += (Lam[a, i, k] + Lam[b, i, k]) * gG[k]
+        out[a, i] -= c * f
+        out[b, i] += c * f
+    # gG x p: the sigma rows (dGamma/dsigma = hat(p)/(2 ds), hat(p)^T gG = gG x p)
+    out[a, 3] += c * (gG[1] * pa[2] - gG[2] * pa[1])
+    out[a, 4] += c * (gG[2] * pa[0] - gG[0] * pa[2])
+    out[a, 5] += c * (gG[0] * pa[1] - gG[1] * pa[0])
+    out[b, 3] += c * (gG[1] * pb[2] - gG[2] * pb[1])
+    out[b, 4] += c * (gG[2] * pb[0] - gG[0] * pb[2])
+    out[b, 5] += c * (gG[0] * pb[1] - gG[1] * pb[0])
+
+
+@njit(cache=True)
+def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X):
+    """`centreline_and_weights`: weights of labels s on r and X, X', X'' (the period added to the nodes
+    past the end of a periodic tube)."""
+    n = r.shape[0]
+    _k_centreline_weights(s, n, ds, periodic, nodes, N, dN, d2N)
+    for k in range(s.shape[0]):
+        e = int(math.floor(s[k] / ds))
+        for d in range(3):
+            X[k, d] = 0.0
+            dX[k, d] = 0.0
+            d2X[k, d] = 0.0
+        for i in range(4):
+            wrap = (e - 1 + i) // n if periodic else 0
+            for d in range(3):
+                p = r[nodes[k, i], d] + wrap * period[d]
+                X[k, d] += N[k, i] * p
+                dX[k, d] += dN[k, i] * p
+                d2X[k, d] += d2N[k, i] * p
+
+
+@njit(cache=True)
+def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1, ghat,
+                          index, gV, c1, p_ext, g, mbar, grav):
+    """Level gradients of the potential given c1_k = dU/dV_k (the equation of state's -p_k, or -mu_k):
+    ``(U_rest, rod0, rod1, Ds, DR, dU_dG)`` with U_rest the external-pressure and gravity parts of U."""
+    n = rbar.shape[0]
+    nR = Rbar.shape[0]
+    n_lab = sbar.shape[0]
+    M = n_lab - 1
+    n_el = ghat.shape[0]
+    o_R = n_lab
+    o_g = n_lab + nR
+    gy = np.zeros(n_lab + 2 * nR)
+    for k in range(M):
+        for i in range(index.shape[1]):
+            if index[k, i] >= 0:
+                gy[index[k, i]] += c1[k] * gV[k, i]
+    U = 0.0
+    if p_ext != 0.0:
+        # Vol = sum_e ds pi/12 [gamma_a (3a^2 + 2ab + b^2) + gamma_b (a^2 + 2ab + 3b^2)] (`_potential_in_y`)
+        c = p_ext * ds * math.pi / 12.0
+        for e in range(nR if periodic else nR - 1):
+            ja = e
+            jb = (e + 1) % nR
+            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
+            U += c * (ga * (3 * a * a + 2 * a * b + b * b) + gb * (a * a + 2 * a * b + 3 * b * b))
+            gy[o_R + ja] += c * (ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b))
+            gy[o_R + jb] += c * (ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b))
+            gy[o_g + ja] += c * (3 * a * a + 2 * a * b + b * b)
+            gy[o_g + jb] += c * (a * a + 2 * a * b + 3 * b * b)
+    dU_dG = np.zeros(n_el)
+    rod0 = np.zeros((n, 6))
+    rod1 = np.zeros((n, 6))
+    gG = np.empty(3)
+    for e in range(n_el):
+        b = (e + 1) % n
+        for j in (e, b):
+            dU_dG[e] += _stretch_weight(j, n, periodic) * gy[o_g + j]
+        # dL/dGamma^l_e = 1/2 dL/dGammabar_e = -h/2 dU/dG_e ghat_e
+        for i in range(3):
+            gG[i] = -0.5 * h * dU_dG[e] * ghat[e, i]
+        _add_rod_gradient(rod0, Lam0, pa0[e], pb0[e], e, b, gG, ds)
+        _add_rod_gradient(rod1, Lam1, pa1[e], pb1[e], e, b, gG, ds)
+    Ds = np.empty(n_lab)
+    for k in range(n_lab):
+        Ds[k] = -0.5 * h * gy[k]
+    DR = np.empty(nR)
+    for j in range(nR):
+        DR[j] = -0.5 * h * gy[o_R + j]
+    if grav:
+        # -g . sum_k mbar_k X(sbar_k; rbar): linear in r with weights summing to one
+        nodes = np.empty((n_lab, 4), np.int64)
+        N = np.empty((n_lab, 4))
+        dN = np.empty((n_lab, 4))
+        d2N = np.empty((n_lab, 4))
+        X = np.empty((n_lab, 3))
+        dX = np.empty((n_lab, 3))
+        d2X = np.empty((n_lab, 3))
+        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        for k in range(n_lab):
+            U -= mbar[k] * (X[k, 0] * g[0] + X[k, 1] * g[1] + X[k, 2] * g[2])
+            Ds[k] += 0.5 * h * mbar[k] * (dX[k, 0] * g[0] + dX[k, 1] * g[1] + dX[k, 2] * g[2])
+            for i in range(4):
+                for d in range(3):
+                    f = 0.5 * h * mbar[k] * N[k, i] * g[d]
+                    rod0[nodes[k, i], d] += f
+                    rod1[nodes[k, i], d] += f
+    return U, rod0, rod1, Ds, DR, dU_dG
+
+
+# -- sparse helpers: CSR lists with duplicates, and their product with duplicates summed
+
+
+@njit(cache=True)
+def _k_coo_to_csr(rows, cols, vals, n_rows):
+    """CSR (ptr, idx, val) of COO triplets, by a counting sort on the rows; duplicates are kept (the
+    product below sums them)."""
+    ptr = np.zeros(n_rows + 1, np.int64)
+    for t in range(rows.shape[0]):
+        ptr[rows[t] + 1] += 1
+    for i in range(n_rows):
+        ptr[i + 1] += ptr[i]
+    fill = ptr[:-1].copy()
+    idx = np.empty(rows.shape[0], np.int64)
+    val = np.empty(rows.shape[0])
+    for t in range(rows.shape[0]):
+        p = fill[rows[t]]
+        idx[p] = cols[t]
+        val[p] = vals[t]
+        fill[rows[t]] = p + 1
+    return ptr, idx, val
+
+
+@njit(cache=True)
+def _k_spgemm(Ap, Ai, Ax, Bp, Bi, Bx, n_cols):
+    """C = A B for CSR A (n x m) and B (m x n_cols) (duplicates allowed in both): Gustavson's row-by-row
+    product with a marker array, so each (row, column) of C appears once.  Two passes: the pattern, then
+    the values.  Returns CSR (ptr, idx, val), columns in order of first appearance within a row."""
+    n = Ap.shape[0] - 1
+    mark = np.full(n_cols, -1, np.int64)
+    Cp = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        cnt = 0
+        for a in range(Ap[i], Ap[i + 1]):
+            k = Ai[a]
+            for b in range(Bp[k], Bp[k + 1]):
+                j = Bi[b]
+                if mark[j] != i:
+                    mark[j] = i
+                    cnt += 1
+        Cp[i + 1] = Cp[i] + cnt
+    Ci = np.empty(Cp[n], np.int64)
+    Cx = np.zeros(Cp[n])
+    pos = np.full(n_cols, -1, np.int64)   # where column j sits in C; stale when below the row's start
+    for i in range(n):
+        start = Cp[i]
+        p = start
+        for a in range(Ap[i], Ap[i + 1]):
+            k = Ai[a]
+            x = Ax[a]
+            for b in range(Bp[k], Bp[k + 1]):
+                j = Bi[b]
+                if pos[j] < start:
+                    pos[j] = p
+                    Ci[p] = j
+                    Cx[p] = x * Bx[b]
+                    p += 1
+                else:
+                    Cx[pos[j]] += x * Bx[b]
+    return Cp, Ci, Cx
+
+
+@njit(cache=True)
+def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1,
+                        Gn, ghat, dU_dG, index, gV, HV, c1, c2, p_ext, g, mbar, grav):
+    """The potential's Newton block (see the section notes) as COO (rows, cols, vals).
+
+    c1_k, c2_k are dU/dV_k and d2U/dV_k^2 of the fluid term (equation of state: -p_k and -dp_k/dV_k;
+    incompressible: -mu_k and 0, plus the mu rows and columns -dV_k/dy)."""
+    n = rbar.shape[0]
+    nR = Rbar.shape[0]
+    n_lab = sbar.shape[0]
+    M = n_lab - 1
+    n_el = Gn.shape[0]
+    n_loc = index.shape[1]
+    o_R, o_g, o_mu = n_lab, n_lab + nR, n_lab + 2 * nR
+    ny = o_mu + n_mu
+    off_s, off_R, off_mu = 6 * n, 6 * n + n_lab, 6 * n + n_lab + nR
+    nu = off_mu + n_mu
+
+    # -- Hy: the Hessian of U in y = (sbar, Rbar, gamma, mu), as COO with duplicates
+    n_pe = nR if periodic else nR - 1
+    cap = M * n_loc * n_loc + (2 * M * n_loc if n_mu > 0 else 0) + (12 * n_pe if p_ext != 0.0 else 0)
+    hr = np.empty(cap, np.int64)
+    hc = np.empty(cap, np.int64)
+    hv = np.empty(cap)
+    t = 0
+    for k in range(M):
+        for i in range(n_loc):
+            yi = index[k, i]
+            if yi < 0:
+                continue
+            for j in range(n_loc):
+                yj = index[k, j]
+                if yj < 0:
+                    continue
+                hr[t] = yi
+                hc[t] = yj
+                hv[t] = c2[k] * gV[k, i] * gV[k, j] + c1[k] * HV[k, i, j]
+                t += 1
+            if n_mu > 0:  # -mu_k (V_k - V0_k): d2/dmu_k dy = -dV_k/dy
+                hr[t] = o_mu + k
+                hc[t] = yi
+                hv[t] = -gV[k, i]
+                hr[t + 1] = yi
+                hc[t + 1] = o_mu + k
+                hv[t + 1] = -gV[k, i]
+                t += 2
+    if p_ext != 0.0:
+        c = p_ext * ds * math.pi / 12.0
+        for e in range(n_pe):
+            ja = e
+            jb = (e + 1) % nR
+            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
+            iRa, iRb, iga, igb = o_R + ja, o_R + jb, o_g + ja, o_g + jb
+            # (R_a, R_a), (R_b, R_b) once; the off-diagonal pairs both ways (`_potential_in_y`)
+            pr = (iRa, iRb, iRa, iRb, iRa, iga, iRa, igb, iRb, iga, iRb, igb)
+            pc = (iRa, iRb, iRb, iRa, iga, iRa, igb, iRa, iga, iRb, igb, iRb)
+            v_ab = c * (2 * ga + 2 * gb)
+            v_aga = c * (6 * a + 2 * b)
+            v_agb = c * (2 * a + 2 * b)
+            v_bga = c * (2 * a + 2 * b)
+            v_bgb = c * (2 * a + 6 * b)
+            pv = (c * (6 * ga + 2 * gb), c * (2 * ga + 6 * gb), v_ab, v_ab, v_aga, v_aga, v_agb, v_agb,
+                  v_bga, v_bga, v_bgb, v_bgb)
+            for q in range(12):
+                hr[t] = pr[q]
+                hc[t] = pc[q]
+                hv[t] = pv[q]
+                t += 1
+    Hp, Hi, Hx = _k_coo_to_csr(hr[:t], hc[:t], hv[:t], ny)
+
+    # -- per element: rho_e (rows), kappa_e (columns), E_e (the derivative of ghat_e)
+    Dc = np.empty((n, 3, 3))            # dcay(-xi_j), xi_j = cay^-1(Lambda_j^nT Lambda_j^{n+1})
+    for j in range(n):
+        Q = Lam0[j].T @ Lam1[j]
+        f = 2.0 / (1.0 + Q[0, 0] + Q[1, 1] + Q[2, 2])
+        x, y, z = f * (Q[2, 1] - Q[1, 2]), f * (Q[0, 2] - Q[2, 0]), f * (Q[1, 0] - Q[0, 1])
+        cc = 4.0 / (4.0 + x * x + y * y + z * z)
+        # dcay(-xi) = cc (I - hat(xi)/2)
+        Dc[j, 0, 0] = cc
+        Dc[j, 1, 1] = cc
+        Dc[j, 2, 2] = cc
+        Dc[j, 0, 1] = cc * 0.5 * z
+        Dc[j, 1, 0] = -cc * 0.5 * z
+        Dc[j, 0, 2] = -cc * 0.5 * y
+        Dc[j, 2, 0] = cc * 0.5 * y
+        Dc[j, 1, 2] = cc * 0.5 * x
+        Dc[j, 2, 1] = -cc * 0.5 * x
+    rho = np.empty((n_el, 12))
+    kappa = np.empty((n_el, 12))
+    E = np.empty((n_el, 12, 12))
+    ecol = np.empty((n_el, 12), np.int64)
+    A0 = np.empty((3, 12))
+    C = np.empty((3, 12))
+    P = np.empty((3, 3))
+    for e in range(n_el):
+        a = e
+        b = (e + 1) % n
+        LT0 = (Lam0[a] + Lam0[b]).T / (2.0 * ds)
+        LT1 = (Lam1[a] + Lam1[b]).T / (2.0 * ds)
+        # A^n_e with its translational columns rotated by Lambda^n (rows of D1 in the level-n body frame)
+        A0[:, 0:3] = -(LT0 @ Lam0[a])
+        A0[:, 6:9] = LT0 @ Lam0[b]
+        # A^{n+1}_e B_e: translations b -> Lambda^n b, rotations xi -> sigma = dcay(-xi) dxi
+        C[:, 0:3] = -(LT1 @ Lam0[a])
+        C[:, 6:9] = LT1 @ Lam0[b]
+        ha = np.zeros((3, 3))
+        hb = np.zeros((3, 3))
+        for lev in range(2):
+            pa = pa0[e] if lev == 0 else pa1[e]
+            pb = pb0[e] if lev == 0 else pb1[e]
+            ha[0, 1], ha[0, 2], ha[1, 0], ha[1, 2], ha[2, 0], ha[2, 1] = -pa[2], pa[1], pa[2], -pa[0], -pa[1], pa[0]
+            hb[0, 1], hb[0, 2], hb[1, 0], hb[1, 2], hb[2, 0], hb[2, 1] = -pb[2], pb[1], pb[2], -pb[0], -pb[1], pb[0]
+            if lev == 0:
+                A0[:, 3:6] = ha / (2.0 * ds)
+                A0[:, 9:12] = hb / (2.0 * ds)
+            else:
+                C[:, 3:6] = (ha / (2.0 * ds)) @ Dc[a]
+                C[:, 9:12] = (hb / (2.0 * ds)) @ Dc[b]
+        w = dU_dG[e] / Gn[e]
+        for i in range(3):
+            for k in range(3):
+                P[i, k] = w * ((1.0 if i == k else 0.0) - ghat[e, i] * ghat[e, k])
+        PC = P @ C
+        for l in range(12):
+            r_ = 0.0
+            k_ = 0.0
+            for i in range(3):
+                r_ += A0[i, l] * ghat[e, i]
+                k_ += ghat[e, i] * C[i, l]
+            rho[e, l] = -0.5 * h * r_
+            kappa[e, l] = 0.5 * k_
+            for m in range(12):
+                v = 0.0
+                for i in range(3):
+                    v += A0[i, l] * PC[i, m]
+                E[e, l, m] = -0.25 * h * v
+        for l in range(6):
+            ecol[e, l] = 6 * a + l
+            ecol[e, 6 + l] = 6 * b + l
+
+    # -- Y = dy/du as CSR over y (duplicates allowed)
+    cap = n_lab + nR + n_mu + 2 * 12 * n_el
+    yr = np.empty(cap, np.int64)
+    yc = np.empty(cap, np.int64)
+    yv = np.empty(cap)
+    t = 0
+    for k in range(n_lab):
+        yr[t], yc[t], yv[t] = k, off_s + k, 0.5
+        t += 1
+    for j in range(nR):
+        yr[t], yc[t], yv[t] = o_R + j, off_R + j, 0.5
+        t += 1
+    for k in range(n_mu):
+        yr[t], yc[t], yv[t] = o_mu + k, off_mu + k, 1.0
+        t += 1
+    for e in range(n_el):
+        for j in (e, (e + 1) % n):
+            wj = _stretch_weight(j, n, periodic)
+            for l in range(12):
+                yr[t], yc[t], yv[t] = o_g + j, ecol[e, l], wj * kappa[e, l]
+                t += 1
+    Yp, Yi, Yx = _k_coo_to_csr(yr[:t], yc[:t], yv[:t], ny)
+
+    # -- K = Hy Y, then the element rows E_e appended (rows ny + 12 e + l)
+    Kp, Ki, Kx = _k_spgemm(Hp, Hi, Hx, Yp, Yi, Yx, nu)
+    nK = Kp[ny]
+    Kp2 = np.empty(ny + 12 * n_el + 1, np.int64)
+    Kp2[:ny + 1] = Kp
+    Ki2 = np.empty(nK + 144 * n_el, np.int64)
+    Kx2 = np.empty(nK + 144 * n_el)
+    Ki2[:nK] = Ki
+    Kx2[:nK] = Kx
+    p = nK
+    for e in range(n_el):
+        for l in range(12):
+            for m in range(12):
+                Ki2[p] = ecol[e, m]
+                Kx2[p] = E[e, l, m]
+                p += 1
+            Kp2[ny + 12 * e + l + 1] = p
+
+    # -- the row map Ry^T: each residual row as a combination of rows of K
+    cap = n_lab + nR + n_mu + 3 * 12 * n_el
+    rr = np.empty(cap, np.int64)
+    rc = np.empty(cap, np.int64)
+    rv = np.empty(cap)
+    t = 0
+    for k in range(n_lab):
+        rr[t], rc[t], rv[t] = off_s + k, k, -0.5 * h
+        t += 1
+    for j in range(nR):
+        rr[t], rc[t], rv[t] = off_R + j, o_R + j, -0.5 * h
+        t += 1
+    for k in range(n_mu):
+        rr[t], rc[t], rv[t] = off_mu + k, o_mu + k, -h
+        t += 1
+    for e in range(n_el):
+        for l in range(12):
+            row = ecol[e, l]
+            for j in (e, (e + 1) % n):
+                rr[t], rc[t], rv[t] = row, o_g + j, _stretch_weight(j, n, periodic) * rho[e, l]
+                t += 1
+            rr[t], rc[t], rv[t] = row, ny + 12 * e + l, 1.0
+            t += 1
+    Rp, Ri, Rx = _k_coo_to_csr(rr[:t], rc[:t], rv[:t], nu)
+    Jp, Ji, Jx = _k_spgemm(Rp, Ri, Rx, Kp2, Ki2, Kx2, nu)
+
+    # -- COO, with the labels' gravity appended (`_gravity_newton`)
+    nJ = Jp[nu]
+    n_grav = 25 * n_lab if grav else 0
+    rows = np.empty(nJ + n_grav, np.int64)
+    cols = np.empty(nJ + n_grav, np.int64)
+    vals = np.empty(nJ + n_grav)
+    for i in range(nu):
+        for q in range(Jp[i], Jp[i + 1]):
+            rows[q] = i
+    cols[:nJ] = Ji
+    vals[:nJ] = Jx
+    if grav:
+        nodes = np.empty((n_lab, 4), np.int64)
+        N = np.empty((n_lab, 4))
+        dN = np.empty((n_lab, 4))
+        d2N = np.empty((n_lab, 4))
+        X = np.empty((n_lab, 3))
+        dX = np.empty((n_lab, 3))
+        d2X = np.empty((n_lab, 3))
+        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        q = nJ
+        for k in range(n_lab):
+            for i in range(4):
+                j = nodes[k, i]
+                w = 0.25 * h * mbar[k] * dN[k, i]
+                for d in range(3):
+                    gb = Lam0[j, 0, d] * g[0] + Lam0[j, 1, d] * g[1] + Lam0[j, 2, d] * g[2]
+                    rows[q], cols[q], vals[q] = 6 * j + d, off_s + k, w * gb
+                    rows[q + 1], cols[q + 1], vals[q + 1] = off_s + k, 6 * j + d, w * gb
+                    q += 2
+            rows[q], cols[q] = off_s + k, off_s + k
+            vals[q] = 0.25 * h * mbar[k] * (d2X[k, 0] * g[0] + d2X[k, 1] * g[1] + d2X[k, 2] * g[2])
+            q += 1
+    return rows, cols, vals
+
+
+def _potential_fast(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu, newton):
+    """:func:`fluid_potential_step` by the compiled kernels (labels the kernels cannot read go to the
+    NumPy path, which raises the precise error)."""
+    s0, s1, R0, R1 = (np.ascontiguousarray(x, dtype=np.float64) for x in (s0, s1, R0, R1))
+    r0, r1, Lam0, Lam1 = (np.ascontiguousarray(x, dtype=np.float64) for x in (r0, r1, Lam0, Lam1))
+    mu = None if mu is None else np.ascontiguousarray(mu, dtype=np.float64)
+    n_nodes, n_lab = len(r0), len(s0)
+    g = np.ascontiguousarray(fp.g, dtype=np.float64)
+    grav = bool(np.any(g != 0.0))
+    sbar = 0.5 * (s0 + s1)
+    if not _k_labels_ok(sbar, n_nodes, fp.ds, fp.periodic, True, grav):
+        return _potential_numpy(fp, h, s0, r0, Lam0, R0, s1, r1, Lam1, R1, mu, newton)
+    period = _period_vector(n_nodes, fp.ds, fp.period)
+    (sbar, Rbar, rbar, pa0, pb0, pa1, pb1, Gn, ghat, gamma, V, index, gV, HV) = _k_potential_setup(
+        s0, s1, R0, R1, r0, r1, Lam0, Lam1, fp.ds, fp.periodic, period)
+    if fp.incompressible:
+        U = -float(np.dot(mu, V - fp.V0))
+        c1, c2 = -mu, np.zeros(len(V))
+    else:
+        U = float(np.sum(fp.eos.psi(V, fp.m, fp.S)))
+        c1, c2 = (np.ascontiguousarray(x, dtype=np.float64) for x in fp.eos.dpsi(V, fp.m, fp.S))
+    mbar = np.ascontiguousarray(fp.mbar, dtype=np.float64)
+    U_rest, rod0, rod1, Ds, DR, dU_dG = _k_potential_gradient(
+        h, fp.ds, fp.periodic, period, sbar, Rbar, gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1, ghat, index, gV, c1,
+        float(fp.p_ext), g, mbar, grav)
+    U += U_rest
+    Dmu = h * (V - fp.V0) if fp.incompressible else None
+    block = None
+    if newton:
+        block = _k_potential_newton(h, fp.ds, fp.periodic, period, len(V) if fp.incompressible else 0, sbar, Rbar,
+                                    gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1, Gn, ghat, dU_dG, index, gV, HV, c1, c2,
+                                    float(fp.p_ext), g, mbar, grav)
+    return StepTerm(-h * U, LevelGradient(rod0, Ds, DR), LevelGradient(rod1, Ds.copy(), DR.copy()), Dmu, block)
+
+
+@njit(cache=True)
+def _k_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton):
+    """`fluid_kinetic_chart` label by label: ``(L, rod0, s0 gradient, rod1, s1 gradient, rows, cols, vals)``.
+
+    Per label, with D = X^{n+1} - X^n and c = mbar/h, the gradient is c D . dD (dD: -X^n', -N^n_a e_d at
+    level n; X^{n+1}', N^{n+1}_a e_d at level n+1), and the Newton block is the level-n x level-(n+1)
+    quadrant of c JD^T JD (X is linear in r: no second derivative reaches it), rows rotated by
+    Lambda^nT of their node, columns mapped to b by Lambda^n of theirs."""
+    n = r0.shape[0]
+    n_lab = s0.shape[0]
+    nodes0 = np.empty((n_lab, 4), np.int64)
+    nodes1 = np.empty((n_lab, 4), np.int64)
+    N0 = np.empty((n_lab, 4))
+    N1 = np.empty((n_lab, 4))
+    dN0 = np.empty((n_lab, 4))
+    dN1 = np.empty((n_lab, 4))
+    d2N = np.empty((n_lab, 4))
+    X0 = np.empty((n_lab, 3))
+    X1 = np.empty((n_lab, 3))
+    dX0 = np.empty((n_lab, 3))
+    dX1 = np.empty((n_lab, 3))
+    d2X = np.empty((n_lab, 3))
+    _centreline_points(s0, r0, ds, periodic, period, nodes0, N0, dN0, d2N, X0, dX0, d2X)
+    _centreline_points(s1, r1, ds, periodic, period, nodes1, N1, dN1, d2N, X1, dX1, d2X)
+    rod0 = np.zeros((n, 6))
+    rod1 = np.zeros((n, 6))
+    gs0 = np.zeros(n_lab)
+    gs1 = np.zeros(n_lab)
+    nb = 169 * n_lab if newton else 0
+    rows = np.empty(nb, np.int64)
+    cols = np.empty(nb, np.int64)
+    vals = np.empty(nb)
+    off_s = 6 * n
+    L = 0.0
+    D = np.empty(3)
+    u0 = np.empty((4, 3))   # Lambda_a^nT X^{n+1}' of the level-n stencil nodes
+    u1 = np.empty((4, 3))   # Lambda_b^nT X^n' of the level-(n+1) stencil nodes
+    q = 0
+    a = b = dr = dc = 0
+    for k in range(n_lab):
+        c = mbar[k] / h
+        DD = 0.0
+        d0 = 0.0
+        d1 = 0.0
+        for d in range(3):
+            D[d] = X1[k, d] - X0[k, d]
+            DD += D[d] * D[d]
+            d0 += D[d] * dX0[k, d]
+            d1 += D[d] * dX1[k, d]
+        L += 0.5 * c * DD
+        gs0[k] = -c * d0
+        gs1[k] = c * d1
+        for i in range(4):
+            for d in range(3):
+                rod0[nodes0[k, i], d] -= c * D[d] * N0[k, i]
+                rod1[nodes1[k, i], d] += c * D[d] * N1[k, i]
+        if not newton:
+            continue
+        for a in range(4):
+            ja = nodes0[k, a]
+            jb = nodes1[k, a]
+            for d in range(3):
+                u0[a, d] = Lam0[ja, 0, d] * dX1[k, 0] + Lam0[ja, 1, d] * dX1[k, 1] + Lam0[ja, 2, d] * dX1[k, 2]
+                u1[a, d] = Lam0[jb, 0, d] * dX0[k, 0] + Lam0[jb, 1, d] * dX0[k, 1] + Lam0[jb, 2, d] * dX0[k, 2]
+        # local row/column 0: the label; 1 + 3a + d: component d of stencil node a (13 x 13, row-major)
+        for ru in range(13):
+            if ru == 0:
+                row = off_s + k
+            else:
+                a, dr = (ru - 1) // 3, (ru - 1) % 3
+                row = 6 * nodes0[k, a] + dr
+            for cv in range(13):
+                if cv == 0:
+                    col = off_s + k
+                else:
+                    b, dc = (cv - 1) // 3, (cv - 1) % 3
+                    col = 6 * nodes1[k, b] + dc
+                if ru == 0 and cv == 0:
+                    v = -c * (dX0[k, 0] * dX1[k, 0] + dX0[k, 1] * dX1[k, 1] + dX0[k, 2] * dX1[k, 2])
+                elif ru == 0:
+                    v = -c * N1[k, b] * u1[b, dc]
+                elif cv == 0:
+                    v = -c * N0[k, a] * u0[a, dr]
+                else:
+                    ja = nodes0[k, a]
+                    jb = nodes1[k, b]
+                    m = Lam0[ja, 0, dr] * Lam0[jb, 0, dc] + Lam0[ja, 1, dr] * Lam0[jb, 1, dc] + \
+                        Lam0[ja, 2, dr] * Lam0[jb, 2, dc]
+                    v = -c * N0[k, a] * N1[k, b] * m
+                rows[q] = row
+                cols[q] = col
+                vals[q] = v
+                q += 1
+    return L, rod0, gs0, rod1, gs1, rows, cols, vals
+
+
+def _kinetic_chart_fast(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton):
+    """:func:`fluid_kinetic_chart` by :func:`_k_kinetic_chart` (labels off the centreline: the NumPy path)."""
+    s0, s1 = (np.ascontiguousarray(x, dtype=np.float64) for x in (s0, s1))
+    r0, r1, Lam0 = (np.ascontiguousarray(x, dtype=np.float64) for x in (r0, r1, Lam0))
+    n_nodes = len(r0)
+    if not (_k_labels_ok(s0, n_nodes, ds, periodic, False, True) and _k_labels_ok(s1, n_nodes, ds, periodic, False, True)):
+        return _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton)
+    L, rod0, gs0, rod1, gs1, rows, cols, vals = _k_kinetic_chart(
+        s0, r0, Lam0, s1, r1, np.ascontiguousarray(mbar, dtype=np.float64), float(h), float(ds), bool(periodic),
+        _period_vector(n_nodes, ds, period), bool(newton))
+    empty = np.zeros(0)
+    return StepTerm(L, LevelGradient(rod0, gs0, empty), LevelGradient(rod1, gs1, empty), None,
+                    (rows, cols, vals) if newton else None)
