@@ -554,3 +554,133 @@ def test_external_pressure_works_on_the_whole_stretched_volume(periodic):
     ends = np.array([0.3, 0.3 + 1.2]) if periodic else np.array([0.0, 1.2])
     Vol = stretched_volumes(ends, Rbar, gamma, fp.ds, periodic)[0]
     assert out.L == pytest.approx(-HP * fp.p_ext * Vol, rel=1e-13)
+
+
+# -- the compiled kernels against the NumPy/scipy reference path (fast=False) and scipy's sparse algebra
+
+import scipy.sparse as sps  # noqa: E402
+
+from varint import coupled_terms as ct  # noqa: E402
+
+
+#: (elements, parcels, seed of `_case`): seeds whose moved labels stay ordered and on the tube
+SIZES = [(7, 9, 3), (12, 3, 5), (4, 17, 3)]
+
+
+def _same_step_term(a, b, n, rtol=1e-12):
+    """Two StepTerms equal to round-off: every block on its own scale, the Newton blocks as dense matrices."""
+    assert a.L == pytest.approx(b.L, rel=rtol)
+    for lev in ("D1", "D2"):
+        for f in ("rod", "s", "R"):
+            x, y = getattr(getattr(a, lev), f), getattr(getattr(b, lev), f)
+            assert x.shape == y.shape
+            assert np.max(np.abs(x - y), initial=0.0) <= rtol * np.max(np.abs(y), initial=0.0), (lev, f)
+    assert (a.Dmu is None) == (b.Dmu is None)
+    if b.Dmu is not None:
+        assert np.max(np.abs(a.Dmu - b.Dmu)) <= rtol * np.max(np.abs(b.Dmu))
+    assert (a.newton is None) == (b.newton is None)
+    if b.newton is not None:
+        Ja, Jb = _dense_coo(a.newton, n), _dense_coo(b.newton, n)
+        assert np.max(np.abs(Ja - Jb)) <= rtol * np.max(np.abs(Jb))
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("sizes", SIZES, ids=["M~N", "long-parcels", "short-parcels"])
+def test_compiled_potential_equals_the_numpy_reference(kind, periodic, sizes):
+    """Parcels over one or two elements, over several (a parcel's stencil reaches 5 elements), and several
+    parcels per element; gradient path and Newton block."""
+    n_el, M, seed = sizes
+    fp, st = _case(kind, periodic, n_el=n_el, M=M, seed=seed)
+    n_nodes, n_lab, nR = len(st["r0"]), len(st["s0"]), len(st["R0"])
+    n = newton_offsets(n_nodes, n_lab, nR, 0 if st["mu"] is None else M)[1]
+    for newton in (False, True):
+        fast = fluid_potential_step(fp, HP, **st, newton=newton)
+        ref = fluid_potential_step(fp, HP, **st, newton=newton, fast=False)
+        _same_step_term(fast, ref, n)
+
+
+@pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
+@pytest.mark.parametrize("sizes", SIZES, ids=["M~N", "long-parcels", "short-parcels"])
+def test_compiled_kinetic_chart_equals_the_numpy_reference(periodic, sizes):
+    fp, st = _case("gas", periodic, n_el=sizes[0], M=sizes[1], seed=sizes[2])
+    args = dict(mbar=fp.mbar, h=HP, ds=fp.ds, periodic=periodic)
+    n = 6 * len(st["r0"]) + len(st["s0"])
+    for newton in (False, True):
+        fast = fluid_kinetic_chart(st["s0"], st["r0"], st["Lam0"], st["s1"], st["r1"], newton=newton, **args)
+        ref = fluid_kinetic_chart(st["s0"], st["r0"], st["Lam0"], st["s1"], st["r1"], newton=newton, fast=False, **args)
+        _same_step_term(fast, ref, n)
+
+
+def _random_coo(rng, n_rows, n_cols, nnz):
+    """COO triplets with repeated (row, col) pairs and a few exact zeros."""
+    rows = rng.integers(0, n_rows, nnz)
+    cols = rng.integers(0, n_cols, nnz)
+    vals = rng.normal(size=nnz)
+    vals[::7] = 0.0
+    rows[1::5] = rows[::5][:len(rows[1::5])]   # duplicates
+    cols[1::5] = cols[::5][:len(cols[1::5])]
+    return rows.astype(np.int64), cols.astype(np.int64), vals
+
+
+def _csr_dense(p, i, x, n_cols):
+    out = np.zeros((len(p) - 1, n_cols))
+    for r in range(len(p) - 1):
+        np.add.at(out[r], i[p[r]:p[r + 1]], x[p[r]:p[r + 1]])
+    return out
+
+
+def test_sparse_kernels_equal_scipy():
+    """The CSR helpers of the Newton kernel: the counting-sort conversion keeps every triplet, the duplicate
+    sum (with and without dropping zeros) leaves each (row, column) once and the same matrix, and the
+    marker-array product equals scipy's, each column once per row."""
+    rng = np.random.default_rng(4)
+    A = _random_coo(rng, 13, 17, 80)
+    B = _random_coo(rng, 17, 11, 90)
+    Ad = sps.coo_matrix((A[2], (A[0], A[1])), shape=(13, 17)).toarray()
+    Bd = sps.coo_matrix((B[2], (B[0], B[1])), shape=(17, 11)).toarray()
+    Ap, Ai, Ax = ct._k_coo_to_csr(*A, 13)
+    assert len(Ai) == len(A[0]) and np.array_equal(_csr_dense(Ap, Ai, Ax, 17), Ad)
+    for drop in (False, True):
+        Sp, Si, Sx = ct._k_csr_sum_duplicates(Ap, Ai, Ax, 17, drop)
+        assert np.allclose(_csr_dense(Sp, Si, Sx, 17), Ad, rtol=1e-15, atol=1e-15)
+        for r in range(13):
+            row = Si[Sp[r]:Sp[r + 1]]
+            assert len(set(row)) == len(row)
+            if drop:
+                assert np.all(Sx[Sp[r]:Sp[r + 1]] != 0.0)
+    assert len(ct._k_csr_sum_duplicates(Ap, Ai, Ax, 17, True)[1]) == np.count_nonzero(Ad)
+    Bp, Bi, Bx = ct._k_coo_to_csr(*B, 17)
+    Cp, Ci, Cx = ct._k_spgemm(Ap, Ai, Ax, Bp, Bi, Bx, 11)
+    assert np.allclose(_csr_dense(Cp, Ci, Cx, 11), Ad @ Bd, rtol=1e-14, atol=1e-14)
+    for r in range(13):
+        assert len(set(Ci[Cp[r]:Cp[r + 1]])) == Cp[r + 1] - Cp[r]
+
+
+@pytest.mark.parametrize("what", ["nan", "beyond-the-end", "out-of-order"])
+def test_labels_the_kernels_cannot_read_give_the_reference_errors(what):
+    """The compiled path checks labels before reading them and hands the call to the NumPy path, which
+    raises the precise error: both paths fail alike."""
+    fp, st = _case("gas")
+    L = st["s0"][-1]
+    if what == "nan":
+        st["s1"][3] = np.nan
+    elif what == "beyond-the-end":
+        st["s0"][-1] = st["s1"][-1] = 1.1 * L
+    else:
+        st["s0"][3], st["s0"][4] = st["s0"][4], st["s0"][3]
+        st["s1"][3], st["s1"][4] = st["s1"][4], st["s1"][3]
+    errors = []
+    for fast in (True, False):
+        with pytest.raises(ValueError) as info:
+            fluid_potential_step(fp, HP, **st, newton=True, fast=fast)
+        errors.append(str(info.value))
+    assert errors[0] == errors[1]
+    if what != "out-of-order":  # the kinetic term reads each label on its own: order does not matter to it
+        args = dict(mbar=fp.mbar, h=HP, ds=fp.ds)
+        errors = []
+        for fast in (True, False):
+            with pytest.raises(ValueError) as info:
+                fluid_kinetic_chart(st["s0"], st["r0"], st["Lam0"], st["s1"], st["r1"], fast=fast, **args)
+            errors.append(str(info.value))
+        assert errors[0] == errors[1]

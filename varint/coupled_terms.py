@@ -844,6 +844,42 @@ def _k_coo_to_csr(rows, cols, vals, n_rows):
 
 
 @njit(cache=True)
+def _k_csr_sum_duplicates(ptr, idx, val, n_cols, drop_zeros):
+    """The same matrix with each row's duplicates summed (a marker array) and, if ``drop_zeros``, its exact
+    zeros removed (a liquid's Hessian has structural zeros, stretch x stretch, that would otherwise be
+    carried through both products)."""
+    n = ptr.shape[0] - 1
+    pos = np.full(n_cols, -1, np.int64)
+    optr = np.zeros(n + 1, np.int64)
+    oidx = np.empty(idx.shape[0], np.int64)
+    oval = np.empty(idx.shape[0])
+    p = 0
+    for i in range(n):
+        start = p
+        for q in range(ptr[i], ptr[i + 1]):
+            j = idx[q]
+            if pos[j] < start:
+                pos[j] = p
+                oidx[p] = j
+                oval[p] = val[q]
+                p += 1
+            else:
+                oval[pos[j]] += val[q]
+        end = p
+        for q in range(start, end):
+            pos[oidx[q]] = -1   # compaction below may move the next rows' start under these positions
+        if drop_zeros:
+            p = start
+            for q in range(start, end):
+                if oval[q] != 0.0:
+                    oidx[p] = oidx[q]
+                    oval[p] = oval[q]
+                    p += 1
+        optr[i + 1] = p
+    return optr, oidx[:p], oval[:p]
+
+
+@njit(cache=True)
 def _k_spgemm(Ap, Ai, Ax, Bp, Bi, Bx, n_cols):
     """C = A B for CSR A (n x m) and B (m x n_cols) (duplicates allowed in both): Gustavson's row-by-row
     product with a marker array, so each (row, column) of C appears once.  Two passes: the pattern, then
@@ -880,6 +916,22 @@ def _k_spgemm(Ap, Ai, Ax, Bp, Bi, Bx, n_cols):
                 else:
                     Cx[pos[j]] += x * Bx[b]
     return Cp, Ci, Cx
+
+
+@njit(cache=True)
+def _mm3(A, B, sign, out, col):
+    """out[:, col:col+3] = sign A B for 3 x 3 A, B (loops: numba's @ calls BLAS, slow at this size)."""
+    for i in range(3):
+        for k in range(3):
+            out[i, col + k] = sign * (A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k])
+
+
+@njit(cache=True)
+def _hat3(p, c, out):
+    """out = c hat(p)."""
+    out[0, 0] = out[1, 1] = out[2, 2] = 0.0
+    out[0, 1], out[0, 2], out[1, 2] = -c * p[2], c * p[1], -c * p[0]
+    out[1, 0], out[2, 0], out[2, 1] = c * p[2], -c * p[1], c * p[0]
 
 
 @njit(cache=True)
@@ -951,11 +1003,15 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
                 hv[t] = pv[q]
                 t += 1
     Hp, Hi, Hx = _k_coo_to_csr(hr[:t], hc[:t], hv[:t], ny)
+    Hp, Hi, Hx = _k_csr_sum_duplicates(Hp, Hi, Hx, ny, True)
 
     # -- per element: rho_e (rows), kappa_e (columns), E_e (the derivative of ghat_e)
     Dc = np.empty((n, 3, 3))            # dcay(-xi_j), xi_j = cay^-1(Lambda_j^nT Lambda_j^{n+1})
+    Q = np.empty((3, 3))
     for j in range(n):
-        Q = Lam0[j].T @ Lam1[j]
+        for i in range(3):
+            for k in range(3):
+                Q[i, k] = Lam0[j, 0, i] * Lam1[j, 0, k] + Lam0[j, 1, i] * Lam1[j, 1, k] + Lam0[j, 2, i] * Lam1[j, 2, k]
         f = 2.0 / (1.0 + Q[0, 0] + Q[1, 1] + Q[2, 2])
         x, y, z = f * (Q[2, 1] - Q[1, 2]), f * (Q[0, 2] - Q[2, 0]), f * (Q[1, 0] - Q[0, 1])
         cc = 4.0 / (4.0 + x * x + y * y + z * z)
@@ -976,35 +1032,39 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
     A0 = np.empty((3, 12))
     C = np.empty((3, 12))
     P = np.empty((3, 3))
+    PC = np.empty((3, 12))
+    LT0 = np.empty((3, 3))
+    LT1 = np.empty((3, 3))
+    ha = np.empty((3, 3))
+    hb = np.empty((3, 3))
     for e in range(n_el):
         a = e
         b = (e + 1) % n
-        LT0 = (Lam0[a] + Lam0[b]).T / (2.0 * ds)
-        LT1 = (Lam1[a] + Lam1[b]).T / (2.0 * ds)
+        for i in range(3):
+            for k in range(3):
+                LT0[i, k] = (Lam0[a, k, i] + Lam0[b, k, i]) / (2.0 * ds)
+                LT1[i, k] = (Lam1[a, k, i] + Lam1[b, k, i]) / (2.0 * ds)
         # A^n_e with its translational columns rotated by Lambda^n (rows of D1 in the level-n body frame)
-        A0[:, 0:3] = -(LT0 @ Lam0[a])
-        A0[:, 6:9] = LT0 @ Lam0[b]
+        _mm3(LT0, Lam0[a], -1.0, A0, 0)
+        _mm3(LT0, Lam0[b], 1.0, A0, 6)
+        _hat3(pa0[e], 0.5 / ds, ha)
+        _hat3(pb0[e], 0.5 / ds, hb)
+        A0[:, 3:6] = ha
+        A0[:, 9:12] = hb
         # A^{n+1}_e B_e: translations b -> Lambda^n b, rotations xi -> sigma = dcay(-xi) dxi
-        C[:, 0:3] = -(LT1 @ Lam0[a])
-        C[:, 6:9] = LT1 @ Lam0[b]
-        ha = np.zeros((3, 3))
-        hb = np.zeros((3, 3))
-        for lev in range(2):
-            pa = pa0[e] if lev == 0 else pa1[e]
-            pb = pb0[e] if lev == 0 else pb1[e]
-            ha[0, 1], ha[0, 2], ha[1, 0], ha[1, 2], ha[2, 0], ha[2, 1] = -pa[2], pa[1], pa[2], -pa[0], -pa[1], pa[0]
-            hb[0, 1], hb[0, 2], hb[1, 0], hb[1, 2], hb[2, 0], hb[2, 1] = -pb[2], pb[1], pb[2], -pb[0], -pb[1], pb[0]
-            if lev == 0:
-                A0[:, 3:6] = ha / (2.0 * ds)
-                A0[:, 9:12] = hb / (2.0 * ds)
-            else:
-                C[:, 3:6] = (ha / (2.0 * ds)) @ Dc[a]
-                C[:, 9:12] = (hb / (2.0 * ds)) @ Dc[b]
+        _mm3(LT1, Lam0[a], -1.0, C, 0)
+        _mm3(LT1, Lam0[b], 1.0, C, 6)
+        _hat3(pa1[e], 0.5 / ds, ha)
+        _hat3(pb1[e], 0.5 / ds, hb)
+        _mm3(ha, Dc[a], 1.0, C, 3)
+        _mm3(hb, Dc[b], 1.0, C, 9)
         w = dU_dG[e] / Gn[e]
         for i in range(3):
             for k in range(3):
                 P[i, k] = w * ((1.0 if i == k else 0.0) - ghat[e, i] * ghat[e, k])
-        PC = P @ C
+        for i in range(3):
+            for m in range(12):
+                PC[i, m] = P[i, 0] * C[0, m] + P[i, 1] * C[1, m] + P[i, 2] * C[2, m]
         for l in range(12):
             r_ = 0.0
             k_ = 0.0
@@ -1044,6 +1104,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
                 yr[t], yc[t], yv[t] = o_g + j, ecol[e, l], wj * kappa[e, l]
                 t += 1
     Yp, Yi, Yx = _k_coo_to_csr(yr[:t], yc[:t], yv[:t], ny)
+    Yp, Yi, Yx = _k_csr_sum_duplicates(Yp, Yi, Yx, nu, False)   # elements e-1, e share node e: 24 -> 18
 
     # -- K = Hy Y, then the element rows E_e appended (rows ny + 12 e + l)
     Kp, Ki, Kx = _k_spgemm(Hp, Hi, Hx, Yp, Yi, Yx, nu)
@@ -1087,6 +1148,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
             rr[t], rc[t], rv[t] = row, ny + 12 * e + l, 1.0
             t += 1
     Rp, Ri, Rx = _k_coo_to_csr(rr[:t], rc[:t], rv[:t], nu)
+    Rp, Ri, Rx = _k_csr_sum_duplicates(Rp, Ri, Rx, ny + 12 * n_el, False)
     Jp, Ji, Jx = _k_spgemm(Rp, Ri, Rx, Kp2, Ki2, Kx2, nu)
 
     # -- COO, with the labels' gravity appended (`_gravity_newton`)
