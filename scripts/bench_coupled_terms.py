@@ -6,7 +6,9 @@ coupled step (docs/performance.md).
   (incompressible, p_ext and gravity on: every branch of the potential runs) and of ideal gas, at
   N = M = 20, 100, 1000; the NumPy reference path (``fast=False``) next to the compiled one when both exist;
 * a whole step: ``varint.Simulation`` on examples/water_filled_hose.toml with its nodes and parcels scaled
-  (20, 100, 400 elements), mean wall time per step over a few steps after a warm-up step.
+  (20, 100, 400 elements; the step shortened as 1/N past 20 elements: the rubber's fast modes), mean wall
+  time per step over a few steps after a warm-up step, with the step term on the NumPy reference and on
+  the compiled kernels (the same iterates to round-off: the iteration counts agree).
 
 Run alone (2 cores shared otherwise distort the timings):  python scripts/bench_coupled_terms.py
 """
@@ -14,6 +16,7 @@ Run alone (2 cores shared otherwise distort the timings):  python scripts/bench_
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import time
 from pathlib import Path
@@ -100,6 +103,26 @@ def bench_kernels(sizes, kinds):
                       flush=True)
 
 
+class _reference_path:
+    """Within the block, the step term calls the NumPy reference (``fast=False``): the whole step as before
+    the compiled kernels.  varint/step_terms.py imports the kernels at call time, so patching the module
+    attributes reaches it."""
+
+    def __enter__(self):
+        import functools
+
+        import varint.coupled_terms as ct
+
+        self.saved = ct.fluid_potential_step, ct.fluid_kinetic_chart
+        ct.fluid_potential_step = functools.partial(self.saved[0], fast=False)
+        ct.fluid_kinetic_chart = functools.partial(self.saved[1], fast=False)
+
+    def __exit__(self, *exc):
+        import varint.coupled_terms as ct
+
+        ct.fluid_potential_step, ct.fluid_kinetic_chart = self.saved
+
+
 def bench_steps(elements, n_steps):
     import tomllib
 
@@ -112,23 +135,26 @@ def bench_steps(elements, n_steps):
 
     base = tomllib.loads((ROOT / "examples" / "water_filled_hose.toml").read_text())
     print(f"\nwhole coupled step, examples/water_filled_hose.toml scaled (mean of {n_steps} steps after one, ms)")
-    print(f"{'elements':>9} {'parcels':>8} {'ms/step':>9} {'it/step':>9} {'jac/step':>9}")
+    print(f"{'elements':>9} {'parcels':>8} {'path':>6} {'ms/step':>9} {'it/step':>9} {'jac/step':>9}")
     for n in elements:
         d = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
         d["tube"]["nodes"] = n + 1
         d["fluid"]["parcels"] = n
         # the hose's step is set by the rubber's fast modes, which stiffen as ds^-1: keep it stable
         d["time"]["step"] = base["time"]["step"] * 20 / max(n, 20)
-        sim = Simulation(build_model(parse_scene(to_toml(d))))
-        sim.step()
-        it0, j0 = sim.stats.total_iterations, sim.stats.total_jacobians
-        t0 = time.perf_counter()
-        for _ in range(n_steps):
-            sim.step()
-        dt = (time.perf_counter() - t0) / n_steps
-        its = (sim.stats.total_iterations - it0) / n_steps
-        jac = (sim.stats.total_jacobians - j0) / n_steps
-        print(f"{n:>9} {n:>8} {1e3 * dt:>9.2f} {its:>9.2f} {jac:>9.2f}", flush=True)
+        model = build_model(parse_scene(to_toml(d)))
+        for path in ("numpy", "numba"):
+            sim = Simulation(model)
+            with (_reference_path() if path == "numpy" else contextlib.nullcontext()):
+                sim.step()
+                it0, j0 = sim.stats.total_iterations, sim.stats.total_jacobians
+                t0 = time.perf_counter()
+                for _ in range(n_steps):
+                    sim.step()
+                dt = (time.perf_counter() - t0) / n_steps
+            its = (sim.stats.total_iterations - it0) / n_steps
+            jac = (sim.stats.total_jacobians - j0) / n_steps
+            print(f"{n:>9} {n:>8} {path:>6} {1e3 * dt:>9.2f} {its:>9.2f} {jac:>9.2f}", flush=True)
 
 
 def main():

@@ -44,6 +44,15 @@ sigma = dcay_{-xi} dxi, varint/lie.py).  A^n does not depend on the unknowns, so
 the strains is needed.  Each piece is element- or parcel-local; they are chained as sparse matrices
 whose pattern is the stencil of §10.5 (parcel k: labels k, k+1, radii of nodes e0..e1+1, r and Lambda of
 nodes e0-1..e1+2; gravity: label k and its 4 centreline nodes).
+
+Two implementations of the same algebra.  The default (``fast=True``) is compiled (numba): the gradient in
+two kernels around the equation of state, the Newton block in one that builds the y-space Hessian, the
+column map dy/du and the row map of D1 and D_mu as short CSR lists and multiplies them out row by row
+(Gustavson's product with a marker array), so each entry of the block comes out once; the kinetic chart
+in one label loop.  The NumPy/scipy path (``fast=False``: the sparse chain above, matrix by matrix) is
+kept as the reference the tests compare the kernels with (tests/test_coupled_terms.py); labels the
+kernels cannot read (not finite, out of order, off a closed centreline) go to it, so both raise the same
+errors.  Timings: scripts/bench_coupled_terms.py.
 """
 
 from __future__ import annotations
