@@ -134,8 +134,8 @@ def heated_entropy(S, V1, K, W, gamma, cv):
 class ShockCapturing(Force):
     """The ``[shock_capturing]`` force on a :class:`varint.tube.TubePart` (module docstring).
 
-    f^- = f^+ = (h/2) G^T X with X_k = Ptilde_k - p(Vbar_k) + Q_k and G = dV/dz (constant: the tube is
-    rigid and uniform); its Jacobian (h/2) G^T diag(dX/dV^{n+1}) G is exact.  ``after_step`` heats the
+    f^- = f^+ = (h/2) G^T X with X_k = Ptilde_k - p(Vbar_k) + Q_k and G = dV/dz = A D B_s (constant: the
+    tube is rigid and uniform; D the parcels' label difference, B_s the labels' selection); its Jacobian (h/2) G^T diag(dX/dV^{n+1}) G is exact.  ``after_step`` heats the
     parcels by the viscous work (``tube.S`` in place: the internal-energy term and the monitors read the
     same array).  ``last_work`` is the viscous work of the last accepted step (sum of W_k, J).
     """
@@ -149,18 +149,40 @@ class ShockCapturing(Force):
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
         self.A = math.pi * float(tube.R0) ** 2
         M = tube.M
-        # V = A D s, s = B_s z + c0_s: G = A D B_s (M, nz)
-        D = sp.diags([-np.ones(M), np.ones(M)], [0, 1], shape=(M, M + 1))
-        Bs = tube.B[: M + 1, :]
-        self.G = (self.A * (D @ Bs)).tocsr()
-        self.GT = self.G.T.tocsr()
+        # The labels are s = c0_s + B_s z with B_s a 0/1 selection (interior labels; a periodic tube's s_M
+        # is s_0 + L): keep its (label, z) pairs and apply it by indexing rather than sparse products.
+        Bs = tube.B[: M + 1, :].tocoo()
+        self.lab, self.col = Bs.row.astype(np.int64), Bs.col.astype(np.int64)
+        self.c0 = tube.c0[: M + 1].copy()
+        self.nz = tube.nz
+        # Jacobian pattern of (h/2) G^T diag(dX) G, G = A D B_s: parcel k couples labels k and k+1
+        zof = np.full(M + 1, -1, np.int64)
+        zof[self.lab] = self.col
+        if tube.periodic:
+            zof[M] = zof[0]
+        k = np.arange(M)
+        a, b = zof[k], zof[k + 1]
+        rows = np.concatenate([a, b, a, b])
+        cols = np.concatenate([a, b, b, a])
+        sign = np.concatenate([np.ones(M), np.ones(M), -np.ones(M), -np.ones(M)])
+        keep = (rows >= 0) & (cols >= 0)
+        self._jrows, self._jcols, self._jsign = rows[keep], cols[keep], sign[keep]
+        self._jpar = np.tile(k, 4)[keep]
         self.last_work = 0.0
 
     # -- the two levels --------------------------------------------------------------------
 
     def _volumes(self, q, lam):
-        s = self.tube.config(np.concatenate([q, lam])).s
+        s = self.c0.copy()
+        s[self.lab] += q[self.col]  # labels are inertial unknowns: q holds them (lam does not)
         return self.A * np.diff(s)
+
+    def _GT(self, X):
+        """G^T X = B_s^T (A D^T X): label j gets A (X_{j-1} - X_j)."""
+        g = np.zeros(len(X) + 1)
+        g[:-1] -= X
+        g[1:] += X
+        return self.A * np.bincount(self.col, weights=g[self.lab], minlength=self.nz)
 
     def _K(self):
         t = self.tube
@@ -183,12 +205,13 @@ class ShockCapturing(Force):
     def add(self, pt, d, level):
         """f^- (level 0) = f^+ (level 1) = (h/2) G^T X into the tube's inertial block."""
         X = self.pressures(pt)[0]
-        d.tube_q += 0.5 * pt.h * (self.GT @ X)
+        d.tube_q += 0.5 * pt.h * self._GT(X)
 
     def jacobian(self, pt):
         """d f^- / dz = (h/2) G^T diag(dX/dV1) G (the tube is the model's only part: no offset)."""
         dX = self.pressures(pt)[1]
-        return (0.5 * pt.h) * (self.GT @ sp.diags(dX) @ self.G).tocsc()
+        vals = (0.5 * pt.h * self.A * self.A) * self._jsign * dX[self._jpar]
+        return sp.csc_matrix((vals, (self._jrows, self._jcols)), shape=(self.nz, self.nz))
 
     def work(self, pt):
         """Viscous work W_k = -Q_k (V_k^{n+1} - V_k^n) >= 0 done on each parcel over the step."""
