@@ -49,9 +49,10 @@ def render():
             if k.high is not None:
                 rng += f", ≤ {_num(k.high)}"
             out.append(f"| `{k.name}` | {kind}{rng} | {k.unit} | {default} | {k.doc} |")
-    out.append("\n## Sections not available in this version\n")
-    for name, why in NOT_YET.items():
-        out.append(f"- `[{name}]`: {why}.")
+    if NOT_YET:
+        out.append("\n## Sections not available in this version\n")
+        for name, why in NOT_YET.items():
+            out.append(f"- `[{name}]`: {why}.")
     return "\n".join(out) + "\n"
 
 

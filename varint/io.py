@@ -55,6 +55,7 @@ UNITS = {
     "monitors/angular_momentum_cm": "kg m^2/s",
     "monitors/entropy": "J/K",
     "monitors/constraint_residual": "1",
+    "monitors/rod_constraint_residual": "1",
     "monitors/newton_iterations": "1",
     "monitors/frame_orthogonality": "1",
     # fields

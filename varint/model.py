@@ -41,7 +41,8 @@ import numpy as np
 from .errors import SceneError
 from .forces import Declaration, derive_invariants
 from .rod import RodPart, pack_level
-from .step_terms import CoupledFluid, RodElements, TubeKinetic, TubeMidpointPotential, TubeTrapezoidalPotential
+from .step_terms import (CoupledFluid, RodConstraint, RodElements, TubeKinetic, TubeMidpointPotential,
+                         TubeTrapezoidalPotential)
 from .tube import TubePart
 
 __all__ = ["Model", "build_model"]
@@ -75,13 +76,17 @@ class Model:
         t, r = self.tube, self.rod
         nz_t = t.nz if t is not None else 0
         nq_t = t.nq if t is not None else 0
+        nl_t = t.nlam if t is not None else 0
         nz_r = r.nz if r is not None else 0
-        #: slices of each part in the step unknowns, the level vector and the momenta
+        nl_r = r.nlam if r is not None else 0
+        #: slices of each part in the step unknowns, the level vector, the momenta and State.lam
         self.tube_z, self.rod_z = slice(0, nz_t), slice(nz_t, nz_t + nz_r)
+        self.rod_lam_z = slice(nz_t + nz_r, nz_t + nz_r + nl_r)  #: the rod's multipliers (inextensible rod)
         n1 = (self.N + 1) if r is not None else 0
         self.tube_q, self.rod_q = slice(0, nq_t), slice(nq_t, nq_t + (12 * n1 + 3 if r is not None else 0))
         self.tube_p, self.rod_p = slice(0, nq_t), slice(nq_t, nq_t + 6 * n1)
-        self.nz = nz_t + nz_r
+        self.tube_lam, self.rod_lam = slice(0, nl_t), slice(nl_t, nl_t + nl_r)
+        self.nz = nz_t + nz_r + nl_r
         #: unknown blocks by name: indices (slice or array) into the step unknowns z
         self.layout = dict(t.layout) if t is not None else {}
         if r is not None:
@@ -90,6 +95,8 @@ class Model:
             for name, cols in (("r", slice(0, 3)), ("Lambda", slice(3, 6))):
                 sel = idx[:, cols]
                 self.layout[name] = np.sort(sel[sel >= 0])
+            if nl_r:
+                self.layout["n"] = self.rod_lam_z  # the element forces that hold Gamma = chi
         #: the kinds of the blocks present (the stepper's options and checks follow from them)
         self.has_frames = r is not None
 
@@ -109,6 +116,8 @@ class Model:
             if scheme != "midpoint":
                 raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")
             terms.append(RodElements(self.rod, self.rod_z.start, self.nz))
+            if self.rod.constrained:
+                terms.append(RodConstraint(self))
         if self.coupled:
             terms.append(CoupledFluid(self))
         return terms
@@ -143,6 +152,7 @@ class Model:
         if r is not None:
             q.append(pack_level(r.Lam0, r.r0))
             p += [r.p0.ravel(), r.Pi0.ravel()]
+            lam.append(np.zeros(r.nlam))  # the multipliers of Gamma = chi: no force in the initial shape's strains
             # the last step's displacement in the body frame it started from, and xi: exact for a rigid rotation
             v += [np.einsum("nji,nj->ni", r.Lam0, h * r.v0).ravel(), (h * r.omega0).ravel()]
         cat = lambda xs: np.concatenate(xs) if xs else np.empty(0)  # noqa: E731
@@ -217,8 +227,8 @@ class Model:
             d["effects"] = self.scene.effects
             d["unknowns"] = {name: int(np.size(np.arange(self.nz)[idx])) for name, idx in self.layout.items()}
             d["unknowns_total"] = self.nz
-            d["inertial_unknowns"] = self.nz - self.tube.nlam
-            d["algebraic_unknowns"] = self.tube.nlam
+            d["inertial_unknowns"] = self.nz - self.tube.nlam - self.rod.nlam
+            d["algebraic_unknowns"] = self.tube.nlam + self.rod.nlam
             d["terms"] = d["terms"] + td["terms"] + ["fluid_kinetic", "fluid_potential"]
             d["invariants"] = self.invariants()
             d["lattice"]["parcels"] = self.tube.M

@@ -95,8 +95,10 @@ class RodSection:
 def rod_section(rod, inner_radius):
     """Section of a scene's ``[rod]``: stiffness form, or an annulus of the given thickness."""
     if rod.bending_stiffness is not None:
+        # an inextensible, unshearable rod may leave its axial and shear stiffness out (it has no such energy)
         return RodSection(rod.mass_per_length, rod.rotary_inertia, rod.bending_stiffness, rod.torsional_stiffness,
-                          rod.axial_stiffness, rod.shear_stiffness)
+                          rod.axial_stiffness if rod.axial_stiffness is not None else math.inf,
+                          rod.shear_stiffness if rod.shear_stiffness is not None else math.inf)
     ri = inner_radius
     ro = ri + rod.thickness
     A = math.pi * (ro ** 2 - ri ** 2)
@@ -150,6 +152,11 @@ class RodPart:
         self.free = rod.ends.s0 == "free" and rod.ends.sL == "free"
         self.nz = int(mask.sum())
         self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
+        #: the inextensible, unshearable rod (docs/theory.md §9a, varint.rod_constraint): Gamma = chi imposed by
+        #: multipliers (half-level unknowns, ``ncomp`` per element) instead of the stretch-shear energy
+        self.constrained = rod.constraint == "inextensible_unshearable"
+        self.ncomp = 3 if self.dim == 3 else 2
+        self.nlam = self.N * self.ncomp if self.constrained else 0
         self.w = np.full(self.N + 1, self.ds)
         self.w[0] = self.w[-1] = 0.5 * self.ds
         #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
@@ -180,6 +187,11 @@ class RodPart:
         self.velocity = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
         self.spin = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
         self.set_configuration(Lam, r)
+
+    @property
+    def K_energy(self):
+        """The stretch-shear stiffness of the energy: the section's, or zero when the constraint replaces it."""
+        return np.zeros(3) if self.constrained else self.section.K
 
     def centre_of_mass(self, r):
         return (self.node_mass[:, None] * r).sum(0) / self.node_mass.sum()
@@ -276,7 +288,7 @@ class RodPart:
         kin = float(np.sum(np.sum(p * p, 1) / (sec.rhoA * wmu)) * 0.5
                     + np.sum(np.sum(Pi * Pi / sec.inertia, 1) / wmu) * 0.5)
         bend = float(np.sum(ds * mu * 0.5 * np.sum(sec.J * Om * Om, axis=-1)))
-        stretch = float(np.sum(ds * mu * 0.5 * np.sum(sec.K * dG * dG, axis=-1)))
+        stretch = float(np.sum(ds * mu * 0.5 * np.sum(self.K_energy * dG * dG, axis=-1)))
         grav = -float(np.sum(ds * mu * sec.rhoA * np.sum(self.g * (r[:-1] + r[1:]), axis=-1) * 0.5))
         load = -float(np.dot(self.force, r[-1]))
         if origin is not None and np.any(origin):
@@ -311,7 +323,7 @@ class RodPart:
         if c is None or c[0] != load_factor:
             sec = self.section
             c = (load_factor, sec.rhoA, np.ascontiguousarray(sec.inertia, dtype=float), np.ascontiguousarray(sec.J, dtype=float),
-                 np.ascontiguousarray(sec.K, dtype=float), load_factor * self.g, load_factor * self.force)
+                 np.ascontiguousarray(self.K_energy, dtype=float), load_factor * self.g, load_factor * self.force)
             self._exact_consts = c
         return c
 
@@ -456,9 +468,13 @@ class RodPart:
 
     def describe(self):
         s = self.section
-        return {"effects": ["rod"], "unknowns": {"r": self.layout["r"], "Lambda": self.layout["Lambda"]},
-                "unknowns_total": self.nz, "inertial_unknowns": self.nz, "algebraic_unknowns": 0,
-                "terms": ["rod_kinetic", "bending_torsion", "stretch_shear"] + (["gravity"] if np.any(self.g) else [])
+        unknowns = {"r": self.layout["r"], "Lambda": self.layout["Lambda"]}
+        if self.constrained:
+            unknowns["n"] = self.nlam
+        return {"effects": list(self.scene.effects), "unknowns": unknowns,
+                "unknowns_total": self.nz + self.nlam, "inertial_unknowns": self.nz, "algebraic_unknowns": self.nlam,
+                "terms": ["rod_kinetic", "bending_torsion", "inextensibility" if self.constrained else "stretch_shear"]
+                + (["gravity"] if np.any(self.g) else [])
                 + (["tip_force"] if np.any(self.force) else []),
                 "forces": [f.declaration.name for f in self.forces],
                 "invariants": self.expected_invariants(), "scheme": "midpoint",
@@ -468,7 +484,10 @@ class RodPart:
                 "lattice": {"elements": self.N, "ds": self.ds, "parcels": 0, "periodic": False},
                 "rod": {"dimension": self.dim, "measure": "paper" if self.paper_measure else "reference",
                         "mass_per_length": s.rhoA, "bending_stiffness": s.EI, "torsional_stiffness": s.GJ,
-                        "axial_stiffness": s.EA, "shear_stiffness": s.kGA, "rotary_inertia": s.rhoI}}
+                        # (None: not given, for the inextensible rod that has no such energy)
+                        "axial_stiffness": s.EA if math.isfinite(s.EA) else None,
+                        "shear_stiffness": s.kGA if math.isfinite(s.kGA) else None, "rotary_inertia": s.rhoI,
+                        "constraint": "inextensible_unshearable" if self.constrained else "none"}}
 
 
 def banded_jacobian(func, z, mask, ds, rel_step=1e-6):

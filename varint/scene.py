@@ -120,6 +120,7 @@ SCHEMA = MappingProxyType({
     "rod": (
         Key("dimension", "int", 3, "", "3: full SE(3) motion; 2: planar motion in the x-y plane (3 unknowns per node)", low=2, high=3),
         Key("measure", "str", "reference", "", "reference: densities per reference length (mass per length fixed); paper: every density times |Gamma| as in Lagrangian_fluid_tube (drifts in energy for stiff stretching at large omega h, docs/validation.md)", choices=("paper", "reference")),
+        Key("constraint", "str", "none", "", "none: stretch and shear with the axial and shear stiffness; inextensible_unshearable: Gamma = E_1 held by multipliers (the paper's inext_unshear limit; no stiff axial and shear modes, docs/theory.md §9a)", choices=("none", "inextensible_unshearable")),
         Key("youngs_modulus", "float", None, "Pa", "material form: Young's modulus E", low=0.0, low_open=True),
         Key("shear_modulus", "float", None, "Pa", "material form: shear modulus G (default E/3)", low=0.0, low_open=True),
         Key("density", "float", None, "kg/m^3", "material form: density", low=0.0, low_open=True),
@@ -531,6 +532,12 @@ class _Validator:
             self.bad("initial.traveling_shock", "needs a straight fixed tube: not available with a [rod]")
         if sc.time.scheme != "midpoint":
             self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme only; use 'midpoint'")
+        if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None
+                and sc.fluid.model == "incompressible"):
+            self.bad("rod.constraint", "an incompressible liquid in a rigid, closed, inextensible tube cannot move relative "
+                     "to it (its volume already fixes the length): add a [wall] or use constraint = 'none'")
+        if rod.constraint == "inextensible_unshearable" and rod.measure == "paper":
+            self.bad("rod.measure", "'paper' weights densities by |Gamma|, which the inextensible rod holds at 1: use 'reference'")
         stiff = ("mass_per_length", "rotary_inertia", "bending_stiffness", "torsional_stiffness", "axial_stiffness", "shear_stiffness")
         material = ("youngs_modulus", "density", "thickness")
         given_s = [k for k in stiff if rod[k] is not None]
@@ -538,9 +545,11 @@ class _Validator:
         if given_s and given_m:
             self.bad(f"rod.{given_m[0]}", "give either the material form or the stiffness form, not both")
         elif given_s:
-            for k in stiff:
+            # the inextensible, unshearable rod has no axial or shear energy: those two may be left out
+            needed = stiff[:4] if rod.constraint == "inextensible_unshearable" else stiff
+            for k in needed:
                 if rod[k] is None:
-                    self.bad(f"rod.{k}", "missing (the stiffness form needs all six of " + ", ".join(stiff) + ")")
+                    self.bad(f"rod.{k}", f"missing (the stiffness form needs all {len(needed)} of " + ", ".join(needed) + ")")
         else:
             for k in material:
                 if rod[k] is None:

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements"]
+__all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements",
+           "RodConstraint", "CoupledFluid"]
 
 
 @dataclass
@@ -37,6 +38,7 @@ class StepPoint:
     xi: np.ndarray | None = None  #: cay^-1(Lambda_n^T Lambda_{n+1}) per node
     r_1: np.ndarray | None = None  #: rod positions at level n+1
     Lam_1: np.ndarray | None = None  #: rod frames at level n+1, re-orthonormalised (set when f^+ is asked)
+    rod_lam: np.ndarray | None = None  #: the inextensible rod's multipliers (N, 3), half level
 
 
 class Derivatives:
@@ -47,6 +49,7 @@ class Derivatives:
         self.tube_q = np.zeros(t.nq if t is not None else 0)
         self.tube_lam = np.zeros(t.nlam if t is not None else 0)
         self.rod = np.zeros((r.N + 1, 6)) if r is not None else None
+        self.rod_lam = np.zeros((r.N, 3)) if r is not None and r.constrained else None
 
 
 def _embed(block, offset, nz):
@@ -175,6 +178,72 @@ class RodElements:
 
     def jacobian(self, pt):
         return _embed(self.rod.step_jacobian(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1), self.offset, self.nz)
+
+    def constant_diagonal_jacobian(self):
+        return False
+
+
+class RodConstraint:
+    """-h sum_e ds lambda_e . (Gammabar_e - chi): the inextensible, unshearable rod (varint.rod_constraint).
+
+    Its Newton block: the element blocks in the rod's chart (b, xi) as RodElements', the multipliers'
+    columns (D1 is linear in lambda) and the constraint rows D_lambda = -h ds (Gammabar - chi).
+    """
+
+    name = "inextensibility"
+    order = 2
+
+    def __init__(self, model):
+        self.model, self.rod = model, model.rod
+        rod = self.rod
+        n1 = rod.N + 1
+        idx = np.full((n1, 6), -1)
+        idx[rod.mask] = model.rod_z.start + np.arange(rod.nz)
+        e = np.arange(rod.N)[:, None]
+        loc = np.arange(12)[None, :]
+        self._elem_idx = idx[(e + loc // 6), loc % 6]  # (N, 12) step-unknown index of each element entry, -1 off the mask
+        lam_idx = np.full((rod.N, 3), -1)
+        lam_idx[:, :rod.ncomp] = (model.rod_lam_z.start + np.arange(rod.nlam)).reshape(rod.N, rod.ncomp)
+        self._lam_idx = lam_idx
+
+    def _lam1(self, pt):
+        from .lie import cay
+
+        return pt.Lam_n @ cay(pt.xi)
+
+    def value(self, pt):
+        from .rod_constraint import constraint_step
+
+        return constraint_step(pt.h, self.rod.ds, pt.Lam_n, pt.r_n, self._lam1(pt), pt.r_1, pt.rod_lam, self.rod.ncomp,
+                               (0, 0))[0]
+
+    def add(self, pt, d, level):
+        from .rod_constraint import constraint_step
+
+        _, D1, D2, Dl = constraint_step(pt.h, self.rod.ds, pt.Lam_n, pt.r_n, self._lam1(pt), pt.r_1, pt.rod_lam,
+                                        self.rod.ncomp, (level, level + 1))
+        d.rod += D1 if level == 0 else D2
+        if level == 0:
+            d.rod_lam += Dl
+
+    def jacobian(self, pt):
+        from .rod_constraint import constraint_blocks
+
+        rod = self.rod
+        blocks, lam_blocks, row_blocks = constraint_blocks(pt.h, rod.ds, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, pt.rod_lam,
+                                                           rod.ncomp, rod.mask)
+        E, L = self._elem_idx, self._lam_idx
+        rows = [np.broadcast_to(E[:, :, None], blocks.shape), np.broadcast_to(E[:, :, None], lam_blocks.shape),
+                np.broadcast_to(L[:, :, None], row_blocks.shape)]
+        cols = [np.broadcast_to(E[:, None, :], blocks.shape), np.broadcast_to(L[:, None, :], lam_blocks.shape),
+                np.broadcast_to(E[:, None, :], row_blocks.shape)]
+        vals = [blocks, lam_blocks, row_blocks]
+        r = np.concatenate([x.ravel() for x in rows])
+        c = np.concatenate([x.ravel() for x in cols])
+        v = np.concatenate([x.ravel() for x in vals])
+        keep = (r >= 0) & (c >= 0)
+        nz = self.model.nz
+        return sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=(nz, nz))
 
     def constant_diagonal_jacobian(self):
         return False

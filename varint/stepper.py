@@ -71,21 +71,28 @@ class Step:
             pt.Lam_n, pt.r_n = Lam_n, r_n
             pt.r_1 = r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3])
             pt.xi = u[:, 3:]
+            if rod.constrained:
+                lam_r = np.zeros((rod.N, 3))
+                lam_r[:, :rod.ncomp] = z[m.rod_lam_z].reshape(rod.N, rod.ncomp)
+                pt.rod_lam = lam_r
         return pt
 
     def unknowns(self, q0, q1, lam=None):
-        """The step unknowns z that take level ``q0`` to level ``q1`` (inverse of :meth:`retract`)."""
+        """The step unknowns z that take level ``q0`` to level ``q1`` (inverse of :meth:`retract`), with the
+        half-level unknowns ``lam`` (``State.lam`` layout; default: none, or zeros)."""
         m = self.model
+        if lam is None:
+            lam = np.zeros(m.rod_lam.stop)
         parts = []
         if m.tube is not None:
-            parts += [q1[m.tube_q], np.empty(0) if lam is None else lam]
+            parts += [q1[m.tube_q], lam[m.tube_lam]]
         if m.rod is not None:
             rod = m.rod
             L0, r0, o0 = unpack_level(q0[m.rod_q], rod.N)
             L1, r1, o1 = unpack_level(q1[m.rod_q], rod.N)
             u = np.concatenate([np.einsum("nji,nj->ni", L0, (r1 + o1) - (r0 + o0)),
                                 cay_inv(np.swapaxes(L0, 1, 2) @ L1)], axis=1)
-            parts.append(u[rod.mask])
+            parts += [u[rod.mask], lam[m.rod_lam]]
         return np.concatenate(parts) if parts else np.empty(0)
 
     def retract(self, q0, z, floating_origin=False):
@@ -138,6 +145,8 @@ class Step:
             R = pi_n + d.rod
             R[:, :3] = np.einsum("nji,nj->ni", pt.Lam_n, R[:, :3])
             parts.append(R[rod.mask])
+            if rod.constrained:
+                parts.append(d.rod_lam[:, :rod.ncomp].ravel())
         return np.concatenate(parts) if parts else np.empty(0)
 
     def jacobian(self, q0, z):
@@ -268,7 +277,8 @@ class Simulation:
                     # tube on a rod, by the rod's axial stiffness per area: the liquid's volume fixes its stretch)
                     w = t.wall
                     if w is None:
-                        p_wall = m.rod.section.EA / (np.pi * t.R0 ** 2)
+                        EA = m.rod.section.EA
+                        p_wall = EA / (np.pi * t.R0 ** 2) if np.isfinite(EA) else 0.0
                     else:
                         p_wall = w.stiffness if w.law == "tube-law" else w.beta2 * t.R0 / (2 * np.pi)
                     sc[sl] = max(abs(m.scene.fluid.pressure), p_wall)
@@ -277,6 +287,10 @@ class Simulation:
             rs = np.ones((m.N + 1, 6))
             rs[:, :3] = m.ds
             sc[m.rod_z] = rs[m.rod.mask]
+            if m.rod.constrained:
+                # the multipliers are the elements' internal forces: the bending forces EI/L^2, or the weight
+                sec = m.rod.section
+                sc[m.rod_lam_z] = max(sec.EI / m.L ** 2, sec.rhoA * m.L * max(float(np.linalg.norm(m.rod.g)), 1.0))
         return sc, off
 
     def _newton_options(self):
@@ -306,10 +320,10 @@ class Simulation:
         m, st = self.model, self.state
         parts = []
         if m.tube is not None:
-            parts += [st.q[m.tube_q] + self.h * st.v[m.tube_p], st.lam]
+            parts += [st.q[m.tube_q] + self.h * st.v[m.tube_p], st.lam[m.tube_lam]]
         if m.rod is not None:
             g = st.v[m.rod_p].reshape(2, m.N + 1, 3)
-            parts.append(np.concatenate([g[0], g[1]], axis=1)[m.rod.mask])
+            parts += [np.concatenate([g[0], g[1]], axis=1)[m.rod.mask], st.lam[m.rod_lam]]
         return np.concatenate(parts) if parts else np.empty(0)
 
     def _label_problem(self, q0, z, midpoint=True):
@@ -389,7 +403,7 @@ class Simulation:
                     force.after_step(pt)
         q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin)
         v = self._step_velocity(st.q, z)
-        lam = z[m.tube_z][m.tube.nq:].copy() if m.tube is not None else np.empty(0)
+        lam = np.concatenate([z[m.tube_z][m.tube.nq:] if m.tube is not None else np.empty(0), z[m.rod_lam_z]])
         self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), m.state_data())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = iters, nres, njac
@@ -442,10 +456,10 @@ class Simulation:
         q, p, v_st = st.q[m.tube_q], st.p[m.tube_p], st.v[m.tube_p]
         out = {}
         if t.nlam == 0 or st.q_prev is None:
-            pot = t.energies(t.config(np.concatenate([q, st.lam])))
+            pot = t.energies(t.config(np.concatenate([q, st.lam[m.tube_lam]])))
             v = p / np.where(t.mass > 0, t.mass, 1.0) if st.q_prev is not None else v_st
         else:
-            pot = self.scheme.step_energies(st.q_prev, np.concatenate([q, st.lam, np.zeros(m.nz - m.tube_z.stop)]))
+            pot = self.scheme.step_energies(st.q_prev, np.concatenate([q, st.lam[m.tube_lam], np.zeros(m.nz - m.tube_z.stop)]))
             v = v_st
         kin = 0.5 * t.mass * v * v
         kf = float(np.sum(kin[t.layout["s"]])) if "s" in t.layout else 0.0
@@ -479,7 +493,7 @@ class Simulation:
         q = st.q[m.tube_q]
         if t.incompressible and st.q_prev is not None:
             q = 0.5 * (q + st.q_prev[m.tube_q])
-        return t.config(np.concatenate([q, st.lam]))
+        return t.config(np.concatenate([q, st.lam[m.tube_lam]]))
 
     def _rod_monitors(self):
         """The rod's level energy H(q_n, pi_n), momenta about the origin and the centre of mass, frames."""
@@ -491,6 +505,11 @@ class Simulation:
         # supported components carry reaction impulses in D2 L_d, not momentum: leave them out
         p = pp[: 3 * (N + 1)].reshape(N + 1, 3) * rod.mask[:, :3]
         Pi = pp[3 * (N + 1):].reshape(N + 1, 3) * rod.mask[:, 3:]
+        if rod.constrained:
+            # the level momenta carry half the step's constraint impulse, (h/2) G^T lambda, which is no motion:
+            # the kinetic energy is that of their part tangent to the constraint (p - G^T mu with
+            # G M^-1 (p - G^T mu) = 0, the projection of RATTLE)
+            p, Pi = self._tangent_momenta(Lam, r, p, Pi)
         pot = rod.level_energy(Lam, r, p, Pi, origin)
         out = {"kinetic_energy": pot.pop("kinetic")}
         for k, v in pot.items():
@@ -505,8 +524,30 @@ class Simulation:
         # difference angular_momentum - r_c x P cancels large numbers)
         out["angular_momentum_cm"] = np.cross(r - rod.centre_of_mass(r), p).sum(0) + spin
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        if rod.constrained:
+            from .rod_constraint import element_strain_residual
+
+            out["rod_constraint_residual"] = element_strain_residual(Lam, r, rod.ds)
         out["newton_iterations"] = self.stats.iterations
         return out
+
+    def _tangent_momenta(self, Lam, r, p, Pi):
+        """The momenta's part tangent to Gamma = chi at the level, in the kinetic metric (reference measure)."""
+        import scipy.sparse.linalg as spla
+
+        from .rod_constraint import constraint_jacobian
+
+        rod = self.model.rod
+        mask = rod.mask
+        G = constraint_jacobian(Lam, r, rod.ds, rod.ncomp, mask)
+        minv = np.concatenate([np.repeat(1.0 / rod.node_mass[:, None], 3, axis=1),
+                               1.0 / rod.node_inertia], axis=1)[mask]
+        pa = np.concatenate([p, Pi], axis=1)[mask]
+        A = (G @ sp.diags(minv) @ G.T).tocsc()
+        mu = spla.spsolve(A, G @ (minv * pa)) if A.shape[0] else np.zeros(0)
+        full = np.zeros((rod.N + 1, 6))
+        full[mask] = pa - G.T @ mu
+        return full[:, :3], full[:, 3:]
 
     # -- the coupled tube ------------------------------------------------------------
 
@@ -514,7 +555,7 @@ class Simulation:
         """(level-n configuration of the tube, rod frames, positions, origin) at the current level."""
         m, st = self.model, self.state
         t = m.tube
-        cfg = t.config(np.concatenate([st.q[m.tube_q], st.lam]))
+        cfg = t.config(np.concatenate([st.q[m.tube_q], st.lam[m.tube_lam]]))
         Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
         return cfg, Lam, r, origin
 
@@ -601,6 +642,10 @@ class Simulation:
         c = (np.sum(rod.node_mass[:, None] * r, axis=0) + np.sum(mbar[:, None] * X, axis=0)) / M_tot
         out["angular_momentum_cm"] = np.cross(r - c, p).sum(0) + spin
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        if rod.constrained:
+            from .rod_constraint import element_strain_residual
+
+            out["rod_constraint_residual"] = element_strain_residual(Lam, r, rod.ds)
         if t.eos is not None:
             out["entropy"] = float(np.sum(t.m * t.S))
         out["newton_iterations"] = self.stats.iterations
@@ -632,34 +677,42 @@ class Simulation:
             wmu[1:] += 0.5 * rod.ds * mu
         nodes, Nw, _, _, dX, _ = centreline_and_weights(cfg.s, r, t.ds)
         k = np.repeat(np.arange(M + 1), 4)
-        # Xdot_k,c = sum_a N_a r_{nodes[k,a], c} + X'_k,c sdot_k
+        # variables: per node [rdot (3), body omega (3)], then the labels' sdot; Xdot_k = sum_a N_a rdot + X'_k sdot_k
         rr = (3 * k[:, None] + np.arange(3)).ravel()
-        rc = (3 * nodes.ravel()[:, None] + np.arange(3)).ravel()
+        rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
         rv = np.repeat(Nw.ravel(), 3)
         lr = (3 * np.arange(M + 1)[:, None] + np.arange(3)).ravel()
-        lc = np.repeat(3 * n1 + np.arange(M + 1), 3)
+        lc = np.repeat(6 * n1 + np.arange(M + 1), 3)
         lv = dX.ravel()
-        nvar = 3 * n1 + M + 1
+        nvar = 6 * n1 + M + 1
         Jx = sp.csr_matrix((np.concatenate([rv, lv]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
                            shape=(3 * (M + 1), nvar))
         mbar = np.repeat(t.label_mass_all, 3)
-        Mt = (Jx.T @ sp.diags(mbar) @ Jx).tocsr() + sp.diags(np.concatenate([np.repeat(rod.section.rhoA * wmu, 3),
-                                                                             np.zeros(M + 1)]))
-        active = np.concatenate([np.nonzero(rod.mask[:, :3].ravel())[0], 3 * n1 + np.arange(1, M)])
-        pr = st.p[m.rod_p][: 3 * n1]
+        rod_diag = np.concatenate([np.repeat((rod.section.rhoA * wmu)[:, None], 3, axis=1),
+                                   rod.section.inertia[None, :] * wmu[:, None]], axis=1).ravel()
+        Mt = (Jx.T @ sp.diags(mbar) @ Jx).tocsr() + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
+        active = np.concatenate([np.nonzero(rod.mask.ravel())[0], 6 * n1 + np.arange(1, M)])
+        pr = st.p[m.rod_p].reshape(2, n1, 3).transpose(1, 0, 2).reshape(-1)
         ps = np.zeros(M + 1)
         ps[1:-1] = st.p[m.tube_p][t.layout["s"]]
         pa = np.concatenate([pr, ps])[active]
         Maa = Mt[active][:, active].tocsc()
-        va = spla.spsolve(Maa, pa) if len(pa) else np.zeros(0)
+        if rod.constrained:
+            # the level momenta carry half the step's constraint impulse: keep their part tangent to Gamma = chi
+            # in this metric (the saddle-point solve of RATTLE's projection)
+            from .rod_constraint import constraint_jacobian
+
+            G = constraint_jacobian(Lam, r, rod.ds, rod.ncomp, rod.mask)
+            G = sp.hstack([G, sp.csr_matrix((G.shape[0], len(active) - G.shape[1]))]).tocsr()
+            K = sp.bmat([[Maa, G.T], [G, None]]).tocsc()
+            va = spla.spsolve(K, np.concatenate([pa, np.zeros(G.shape[0])]))[: len(active)]
+        else:
+            va = spla.spsolve(Maa, pa) if len(pa) else np.zeros(0)
         vel = np.zeros(nvar)
         vel[active] = va
         Xdot = (Jx @ vel).reshape(M + 1, 3)
         Kf = 0.5 * float(np.sum(t.label_mass_all * np.sum(Xdot * Xdot, axis=1)))
-        rdot = vel[: 3 * n1].reshape(n1, 3)
-        Pi = st.p[m.rod_p][3 * n1:].reshape(n1, 3) * rod.mask[:, 3:]
-        Kr = 0.5 * float(np.sum(rod.section.rhoA * wmu * np.sum(rdot * rdot, axis=1))
-                         + np.sum(Pi * Pi / (rod.section.inertia[None, :] * wmu[:, None])))
+        Kr = 0.5 * float(np.sum(rod_diag * vel[: 6 * n1] ** 2))
         Kw = 0.0
         if t.wall_dynamic:
             sl = t.layout["R"]
@@ -699,7 +752,7 @@ class Simulation:
             return out
         if t is not None:
             q = st.q[m.tube_q]
-            cfg = t.config(np.concatenate([q, st.lam]))
+            cfg = t.config(np.concatenate([q, st.lam[m.tube_lam]]))
             if t.has_fluid:
                 rho, p, u = t.fluid_fields(cfg, st.p[m.tube_p])
                 out["fluid/s"] = cfg.s.copy()

@@ -280,7 +280,9 @@ class TubePart:
         if self.incompressible:
             base.append("parcel_volume")
         # the same rule as the rod's (varint.forces): a term's `breaks` removes what it names
-        return derive_invariants([Declaration(t.name, {b: None for b in t.breaks}) for t in self.terms], base=base)
+        decl = [Declaration(t.name, {b: None for b in t.breaks}) for t in self.terms]
+        decl += [f.declaration for f in self.forces]  # e.g. a viscosity heating the parcels breaks parcel_entropy
+        return derive_invariants(decl, base=base)
 
     # -- configuration and potential ----------------------------------------
 

@@ -1,0 +1,268 @@
+"""The inextensible, unshearable rod: the holonomic constraint Gamma = chi with multipliers (docs/theory.md §9a).
+
+The paper's ``inext_unshear_norot`` limit of the rod: no stretch and no shear, Gamma = Lambda^T r' = E_1.
+On the lattice the constraint is imposed on each element's strain at the step's strain midpoint, as the
+incompressible fluid's volumes are (docs/theory.md §5): the stretch-shear energy is replaced by
+
+    L_c = -h sum_e ds lambda_e . (Gammabar_e - chi),     Gammabar_e = (Gamma_e^n + Gamma_e^{n+1}) / 2,
+
+with the multipliers lambda_e (the internal force n of the element, body frame) half-level unknowns.
+D_lambda L_d = 0 is Gammabar_e = chi; with Gamma_e^0 = chi it gives Gamma_e^n = chi at every level (to the
+solver tolerance: an error e_{n+1} = -e_n + delta does not grow).  The stiff axial and shear modes are
+then absent, not merely unresolved (docs/theory.md §12).
+
+A planar rod (x-y plane) has Gamma_3 = 0 identically; only Gamma_1, Gamma_2 are constrained there.
+
+Kernels are element-local and exact: :func:`_k_constraint_element` returns an element's value, its
+gradients with respect to the Lie-group variations of both levels (dr spatial, sigma body, per node:
+layout [dr_a, sigma_a, dr_b, sigma_b]) and D_lambda; :func:`_k_constraint_blocks` the Newton blocks by
+complex step of that analytic gradient in the step chart (b, xi) and analytically in lambda.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .rod import _k_cay, _k_mm
+
+__all__ = ["constraint_step", "constraint_blocks", "element_strain_residual"]
+
+
+@njit(cache=True)
+def _k_constraint_element(h, ds, L0a, L0b, r0a, r0b, L1a, L1b, r1a, r1b, lam, ncomp, D1, D2, Dl, lev_lo, lev_hi):
+    """-h ds lam . (Gammabar - chi) of one element (returned) and its exact gradients.
+
+    D1 (12) / D2 (12): d/d(dr, sigma) of the level-n / level-(n+1) variations; Dl (3): d/d lam.  Only the
+    first ``ncomp`` strain components are constrained (3 in space, 2 in the plane).  One scalar type for
+    every array (float64, or complex128 for complex steps).
+    """
+    pa0 = np.empty(3, L0a.dtype)
+    pb0 = np.empty(3, L0a.dtype)
+    pa1 = np.empty(3, L0a.dtype)
+    pb1 = np.empty(3, L0a.dtype)
+    gG = np.empty(3, L0a.dtype)
+    d0 = np.empty(3, L0a.dtype)
+    d1 = np.empty(3, L0a.dtype)
+    for i in range(3):
+        d0[i] = r0b[i] - r0a[i]
+        d1[i] = r1b[i] - r1a[i]
+    for i in range(3):
+        pa0[i] = L0a[0, i] * d0[0] + L0a[1, i] * d0[1] + L0a[2, i] * d0[2]
+        pb0[i] = L0b[0, i] * d0[0] + L0b[1, i] * d0[1] + L0b[2, i] * d0[2]
+        pa1[i] = L1a[0, i] * d1[0] + L1a[1, i] * d1[1] + L1a[2, i] * d1[2]
+        pb1[i] = L1b[0, i] * d1[0] + L1b[1, i] * d1[1] + L1b[2, i] * d1[2]
+    c = h * ds
+    val = 0.0 * lam[0]
+    for i in range(3):
+        Gb = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
+        g = Gb - (1.0 if i == 0 else 0.0)
+        if i < ncomp:
+            val = val - c * lam[i] * g
+            Dl[i] = -c * g
+            gG[i] = -0.5 * c * lam[i]  # d value / d Gamma^l (the same for both levels)
+        else:
+            Dl[i] = 0.0 * g
+            gG[i] = 0.0 * g
+    for lev in range(lev_lo, lev_hi):
+        D = D1 if lev == 0 else D2
+        La = L0a if lev == 0 else L1a
+        Lb = L0b if lev == 0 else L1b
+        pa = pa0 if lev == 0 else pa1
+        pb = pb0 if lev == 0 else pb1
+        for i in range(3):
+            # Gamma = (La + Lb)^T (rb - ra) / (2 ds)
+            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+            D[i] = -f
+            D[6 + i] = f
+        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds); likewise sigma_b with pb
+        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds)
+        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds)
+        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds)
+        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds)
+        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds)
+        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds)
+    return val
+
+
+@njit(cache=True)
+def _k_constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, lev_lo, lev_hi, D1, D2, Dl):
+    """Sum over elements into D1, D2 (N+1, 6) and Dl (N, 3); returns the value."""
+    N = Lam_n.shape[0] - 1
+    e1 = np.empty(12)
+    e2 = np.empty(12)
+    dl = np.empty(3)
+    D1[:] = 0.0
+    D2[:] = 0.0
+    val = 0.0
+    for e in range(N):
+        val += _k_constraint_element(h, ds, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1], Lam_1[e], Lam_1[e + 1],
+                                     r_1[e], r_1[e + 1], lam[e], ncomp, e1, e2, dl, lev_lo, lev_hi)
+        for i in range(6):
+            D1[e, i] += e1[i]
+            D1[e + 1, i] += e1[6 + i]
+            D2[e, i] += e2[i]
+            D2[e + 1, i] += e2[6 + i]
+        for i in range(3):
+            Dl[e, i] = dl[i]
+    return val
+
+
+@njit(cache=True)
+def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, blocks, lam_blocks, row_blocks):
+    """Newton blocks of one element e:
+
+    ``blocks[e, :, k]`` = d(rotated D1 of the element)/d u_k, u = (b_a, xi_a, b_b, xi_b) (complex step of the
+    analytic gradient; translational rows in the level-n body frame of their node, as the rod's);
+    ``lam_blocks[e, :, i]`` = d(rotated D1)/d lam_e,i (analytic: D1 is linear in lam);
+    ``row_blocks[e, i, k]`` = d(D_lam_e,i)/d u_k (complex step).  Columns off the ``mask`` are left zero.
+    """
+    N = Lam_n.shape[0] - 1
+    c = np.complex128
+    La0 = np.empty((3, 3), c)
+    Lb0 = np.empty((3, 3), c)
+    La1 = np.empty((3, 3), c)
+    Lb1 = np.empty((3, 3), c)
+    Ca = np.empty((3, 3), c)
+    Cb = np.empty((3, 3), c)
+    ra0 = np.empty(3, c)
+    rb0 = np.empty(3, c)
+    qa = np.empty(3, c)
+    qb = np.empty(3, c)
+    xa = np.empty(3, c)
+    xb = np.empty(3, c)
+    lc = np.empty(3, c)
+    e1 = np.empty(12, c)
+    e2 = np.empty(12, c)
+    dl = np.empty(3, c)
+    col = np.empty(12)
+    inv = 1.0 / eps
+    for e in range(N):
+        for i in range(3):
+            ra0[i] = r_n[e, i]
+            rb0[i] = r_n[e + 1, i]
+            lc[i] = lam[e, i]
+            for m in range(3):
+                La0[i, m] = Lam_n[e, i, m]
+                Lb0[i, m] = Lam_n[e + 1, i, m]
+        for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                for i in range(3):
+                    row_blocks[e, i, k] = 0.0
+                continue
+            for i in range(3):
+                xa[i] = xi[e, i]
+                xb[i] = xi[e + 1, i]
+                qa[i] = r_1[e, i]
+                qb[i] = r_1[e + 1, i]
+            d = k % 3
+            if k < 3:
+                for i in range(3):
+                    qa[i] += 1j * eps * Lam_n[e, i, d]
+            elif k < 6:
+                xa[d] += 1j * eps
+            elif k < 9:
+                for i in range(3):
+                    qb[i] += 1j * eps * Lam_n[e + 1, i, d]
+            else:
+                xb[d] += 1j * eps
+            _k_cay(xa[0], xa[1], xa[2], Ca)
+            _k_cay(xb[0], xb[1], xb[2], Cb)
+            _k_mm(La0, Ca, La1)
+            _k_mm(Lb0, Cb, Lb1)
+            _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
+            for i in range(12):
+                col[i] = e1[i].imag * inv
+            for i in range(3):
+                blocks[e, i, k] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
+                blocks[e, 6 + i, k] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
+                blocks[e, 3 + i, k] = col[3 + i]
+                blocks[e, 9 + i, k] = col[9 + i]
+                row_blocks[e, i, k] = dl[i].imag * inv
+        # lam columns: D1 is linear in lam, so its derivative is D1 at lam = e_i (real arithmetic suffices)
+        for i in range(3):
+            xa[i] = xi[e, i]
+            xb[i] = xi[e + 1, i]
+            qa[i] = r_1[e, i]
+            qb[i] = r_1[e + 1, i]
+        _k_cay(xa[0], xa[1], xa[2], Ca)
+        _k_cay(xb[0], xb[1], xb[2], Cb)
+        _k_mm(La0, Ca, La1)
+        _k_mm(Lb0, Cb, Lb1)
+        for j in range(3):
+            for i in range(3):
+                lc[i] = 1.0 if i == j else 0.0
+            _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
+            for i in range(12):
+                col[i] = e1[i].real
+            for i in range(3):
+                lam_blocks[e, i, j] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
+                lam_blocks[e, 6 + i, j] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
+                lam_blocks[e, 3 + i, j] = col[3 + i]
+                lam_blocks[e, 9 + i, j] = col[9 + i]
+
+
+def constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, levels=(0, 2)):
+    """(value, D1 (N+1, 6), D2 (N+1, 6), D_lam (N, 3)) of the constraint term over one step."""
+    N = Lam_n.shape[0] - 1
+    D1, D2, Dl = np.empty((N + 1, 6)), np.empty((N + 1, 6)), np.empty((N, 3))
+    f8 = np.float64
+    val = _k_constraint_step(float(h), float(ds), np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                             np.ascontiguousarray(Lam_1, dtype=f8), np.ascontiguousarray(r_1, dtype=f8),
+                             np.ascontiguousarray(lam, dtype=f8), int(ncomp), levels[0], levels[1], D1, D2, Dl)
+    if levels[0] > 0:
+        D1[:] = 0.0
+    if levels[1] < 2:
+        D2[:] = 0.0
+    return val, D1, D2, Dl
+
+
+def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30):
+    """The element Newton blocks of :func:`_k_constraint_blocks`: (blocks (N,12,12), lam_blocks (N,12,3),
+    row_blocks (N,3,12))."""
+    N = Lam_n.shape[0] - 1
+    blocks, lam_blocks, row_blocks = np.empty((N, 12, 12)), np.empty((N, 12, 3)), np.empty((N, 3, 12))
+    f8 = np.float64
+    _k_constraint_blocks(float(h), float(ds), np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                         np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8),
+                         np.ascontiguousarray(lam, dtype=f8), int(ncomp), mask, eps, blocks, lam_blocks, row_blocks)
+    return blocks, lam_blocks, row_blocks
+
+
+def element_strain_residual(Lam, r, ds):
+    """max |Gamma_e - chi| over the elements at one level (the constraint's monitor)."""
+    G = 0.5 * np.einsum("nji,nj->ni", Lam[:-1] + Lam[1:], r[1:] - r[:-1]) / ds
+    G[:, 0] -= 1.0
+    return float(np.max(np.abs(G))) if len(G) else 0.0
+
+
+def constraint_jacobian(Lam, r, ds, ncomp, mask):
+    """G = d(Gamma_e,i)/d(dr, sigma) at one level, on the unknowns of ``mask`` (nlam x mask.sum(), CSR).
+
+    From the constraint kernel's gradient: at h = 1, lam = e_i on every other element (the elements of one
+    parity share no node), D_level = -(ds/2) G^T lam, two parities times ``ncomp`` evaluations.
+    """
+    import scipy.sparse as sp
+
+    N = Lam.shape[0] - 1
+    idx = np.full(mask.shape, -1)
+    idx[mask] = np.arange(int(mask.sum()))
+    rows, cols, vals = [], [], []
+    for parity in (0, 1):
+        elems = np.arange(parity, N, 2)
+        for i in range(ncomp):
+            lam = np.zeros((N, 3))
+            lam[elems, i] = 1.0
+            _, D, _, _ = constraint_step(1.0, ds, Lam, r, Lam, r, lam, ncomp, (0, 1))
+            # D1 at h = 1 with Gamma^n alone varied: value = -ds lam.(Gammabar - chi), dGammabar = dGamma^n / 2
+            Gt = -2.0 * D / ds
+            for e in elems:
+                for node in (e, e + 1):
+                    for d in range(6):
+                        if mask[node, d] and Gt[node, d] != 0.0:
+                            rows.append(e * ncomp + i)
+                            cols.append(idx[node, d])
+                            vals.append(Gt[node, d])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(N * ncomp, int(mask.sum())))
