@@ -314,15 +314,16 @@ class Simulation:
         return SolverError(f"{self._where(n)}: {text} {what}: the step is too large for this motion; "
                            "try a smaller time.step", step=n, time=n * self.h)
 
-    def predictor(self):
+    def predictor(self, rest=False):
         """z extrapolated from the last step: tube q_n + h v, the last lam; the rod's last b and xi
-        (exact for a rigid rotation)."""
+        (exact for a rigid rotation).  ``rest``: the level itself (no motion), the fallback start."""
         m, st = self.model, self.state
+        k = 0.0 if rest else 1.0
         parts = []
         if m.tube is not None:
-            parts += [st.q[m.tube_q] + self.h * st.v[m.tube_p], st.lam[m.tube_lam]]
+            parts += [st.q[m.tube_q] + k * self.h * st.v[m.tube_p], st.lam[m.tube_lam]]
         if m.rod is not None:
-            g = st.v[m.rod_p].reshape(2, m.N + 1, 3)
+            g = k * st.v[m.rod_p].reshape(2, m.N + 1, 3)
             parts += [np.concatenate([g[0], g[1]], axis=1)[m.rod.mask], st.lam[m.rod_lam]]
         return np.concatenate(parts) if parts else np.empty(0)
 
@@ -347,6 +348,16 @@ class Simulation:
         opt = self._newton_options()
         res = newton(F, Jf, z0, self.scale, self.tol, opt["max_iter"], self._factor, rate_refresh=opt["rate_refresh"],
                      chord_iterations=opt["chord_iterations"], polish=opt["polish"], offset=self.offset)
+        if not res.converged and (res.iterations == 0 or "not finite" in res.message):
+            # the extrapolated predictor, or an iterate from it, left the lattice's domain (e.g. folds a label
+            # at a shock's start-up): start again from the level itself, at rest
+            self._factor = None
+            z_rest = self.predictor(rest=True)
+            # damped full Newton: it backs off from iterates outside the domain instead of stopping there
+            res2 = newton_damped(F, Jf, z_rest, self.scale, self.tol, 4 * self.max_iter)
+            res2.n_residual += res.n_residual
+            res2.n_jacobian += res.n_jacobian
+            res = res2
         if not res.converged and opt["damped_fallback"]:
             # a poor extrapolation (e.g. stiff modes that the midpoint rule flips every step): retry with a
             # damped full Newton from the extrapolation, then from rest
@@ -364,7 +375,8 @@ class Simulation:
             # an iterate outside the lattice's domain gives a non-finite residual or Jacobian: name the label
             problem = self._label_problem(st.q, res.z)
             if problem is not None:
-                where = f"in Newton iterate {res.iterations}" if res.iterations else "in the predictor (last velocity extrapolated)"
+                where = (f"in Newton iterate {res.iterations}" if res.iterations else
+                         "at the start of the step (from the last velocity extrapolated, and from rest)")
                 raise self._folded(n1, problem, where)
             raise SolverError(
                 f"Newton failed at {self._where(n1)}: {res.message}; "
