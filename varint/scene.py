@@ -218,6 +218,8 @@ class Scene:
             eff.append("external_pressure")
         if self.gravity_acts:
             eff.append("gravity")
+        if self.shock_capturing is not None:
+            eff.append("shock_capturing")
         return eff
 
     @property

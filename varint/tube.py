@@ -407,6 +407,7 @@ class TubePart:
             "inertial_unknowns": self.nq,
             "algebraic_unknowns": self.nlam,
             "terms": [t.name for t in self.terms],
+            "forces": [f.declaration.name for f in self.forces],
             "invariants": self.invariants(),
             "scheme": self.scheme,
             "lattice": {"elements": self.N, "ds": self.ds, "parcels": self.M, "periodic": self.periodic},
