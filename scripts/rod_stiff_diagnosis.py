@@ -58,8 +58,8 @@ def _toml(d):
     return "\n".join(out)
 
 
-def make(n=N, h=H_BAND, sec=None, curvature=(0, 0, 2.0), spin=(0, 0, 2.0), dim=2):
-    rod = dict(sec or section(), dimension=dim, ends={"s0": "free", "sL": "free"})
+def make(n=N, h=H_BAND, sec=None, curvature=(0, 0, 2.0), spin=(0, 0, 2.0), dim=2, constraint="none"):
+    rod = dict(sec or section(), dimension=dim, ends={"s0": "free", "sL": "free"}, constraint=constraint)
     ini = {}
     if any(curvature):
         ini["curvature"] = [float(c) for c in curvature]
