@@ -69,7 +69,8 @@ from .coupled_geometry import centreline_and_weights, stretched_volume_derivativ
 from .lie import cay_inv, dcay, hat
 
 __all__ = ["fluid_kinetic_step", "LOCAL_SIZE", "FluidPotential", "LevelGradient", "StepTerm", "fluid_potential_step",
-           "fluid_kinetic_chart", "newton_offsets", "stretch_map", "element_strains"]
+           "fluid_kinetic_chart", "newton_offsets", "stretch_map", "element_strains", "fluid_potential_static",
+           "fluid_kinetic_metric"]
 
 #: local unknowns of one label's kinetic contribution: s^n, r^n (4 nodes x 3), s^{n+1}, r^{n+1} (4 x 3)
 LOCAL_SIZE = 26
@@ -1340,3 +1341,129 @@ def _kinetic_chart_fast(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, new
     empty = np.zeros(0)
     return StepTerm(L, LevelGradient(rod0, gs0, empty), LevelGradient(rod1, gs1, empty), None,
                     (rows, cols, vals) if newton else None)
+
+
+# -- one configuration: the static potential's Hessian and the kinetic metric (linear modes, statics) -----------
+
+
+def fluid_potential_static(fp, s, r, Lam, R, mu=None, hessian=True):
+    """The fluid's potential U_f at one configuration, its gradient and its exact Hessian (docs/theory.md §10.4.2).
+
+    U_f = sum_k m_k e(m_k/V_k, S_k)  (or -sum_k mu_k (V_k - V0_k))  + p_ext Vol(R, gamma) - g . sum_k mbar_k X(s_k; r),
+
+    with the stretched volumes of §10.3 at the level's own strains (both levels of a step equal: the
+    step's L_pot is then -h U_f).  Derivatives are in the retraction chart r + dr, Lambda cay(sigma), s, R,
+    mu, ordering [rod (dr spatial, sigma body) 6/node | s (M+1) | R (nR) | mu (M)] of :func:`newton_offsets`.
+    The Hessian is the second derivative of U_f(config retracted by z) at z = 0 (symmetric):
+
+        H = Jy^T H_y Jy  +  sum_e dU/dG_e [ A_e^T (I - ghat ghat^T) A_e / G_e  +  ghat_e . d^2 Gamma_e ]  + gravity,
+
+    y = (s, R, gamma = T G, mu), G_e = |Gamma_e|, A_e the strain Jacobian (`_strain_jacobian`), and the
+    second variation of Gamma_e = sum_{i=a,b} cay(sigma_i)^T Lambda_i^T (r_b - r_a + dr_b - dr_a) / (2 ds) from
+    cay(sigma)^T = I - hat(sigma) + hat(sigma)^2/2 + O(sigma^3):
+
+        ghat . d^2 Gamma / dsigma_i^2        = [ (p_i ghat^T + ghat p_i^T)/2 - (ghat . p_i) I ] / (2 ds),
+        ghat . d^2 Gamma / dsigma_i d dr_b   = hat(ghat) Lambda_i^T / (2 ds) = - (... / d dr_a),
+
+    the geometric stiffness of the pressure (it vanishes where the fluid's pressure equals p_ext).
+    Gravity adds -mbar_k g . X''(s_k) on (s_k, s_k) and -mbar_k N_i'(s_k) g on (s_k, r_i).
+
+    Returns ``(U, grad, H)``: grad (n,), H CSR (n, n) (None unless ``hessian``).  The gradient is
+    -(D1 + D2) of :func:`fluid_potential_step` at h = 1 with both levels equal (tested).
+    """
+    s, R = (np.asarray(x, dtype=np.float64) for x in (s, R))
+    r, Lam = np.asarray(r, dtype=np.float64), np.asarray(Lam, dtype=np.float64)
+    mu = None if mu is None else np.asarray(mu, dtype=np.float64)
+    n_nodes, n_lab, nR = len(r), len(s), len(R)
+    ds = fp.ds
+    n_mu = n_lab - 1 if fp.incompressible else 0
+    off, n = newton_offsets(n_nodes, n_lab, nR, n_mu)
+    ia, ib, _ = _topology(n_nodes, fp.periodic, ds, fp.period)
+    n_el = len(ia)
+    G, pa, pb = element_strains(Lam, r, ds, fp.periodic, fp.period)
+    Gn = np.sqrt(np.sum(G * G, axis=1))
+    ghat = G / Gn[:, None]
+    T = stretch_map(n_nodes, fp.periodic)
+    gamma = T @ Gn
+    U, gy, Hy = _potential_in_y(fp, s, R, gamma, mu, hessian)
+    o_R, o_g, o_mu = n_lab, n_lab + nR, n_lab + 2 * nR
+    dU_dG = T.T @ gy[o_g:o_mu]
+    Lsum = Lam[ia] + Lam[ib]
+    grad = np.zeros(n)
+    grad[:6 * n_nodes] = _rod_gradient(dU_dG[:, None] * ghat, Lsum, pa, pb, ia, ib, ds, n_nodes).ravel()
+    grad[off["s"]:off["s"] + n_lab] = gy[:o_R]
+    grad[off["R"]:off["R"] + nR] = gy[o_R:o_g]
+    grad[off["mu"]:] = gy[o_mu:]
+    g = np.asarray(fp.g, dtype=np.float64)
+    grav = bool(np.any(g != 0.0))
+    if grav:
+        nodes, Nw, dNw, X, dX, d2X = centreline_and_weights(s, r, ds, fp.periodic, fp.period)
+        U -= float(np.sum(fp.mbar * (X @ g)))
+        grad[off["s"]:off["s"] + n_lab] -= fp.mbar * (dX @ g)
+        fr = -(fp.mbar[:, None] * Nw)[:, :, None] * g[None, None, :]
+        grad[:6 * n_nodes] += np.concatenate([_scatter_rows(nodes, fr, n_nodes), np.zeros((n_nodes, 3))], axis=1).ravel()
+    if not hessian:
+        return U, grad, None
+
+    # element columns in the ordering (dr_a, sigma_a, dr_b, sigma_b)
+    ecols = np.concatenate([6 * ia[:, None] + np.arange(6), 6 * ib[:, None] + np.arange(6)], axis=1)
+    A = _strain_jacobian(Lsum, pa, pb, ds)                                   # (n_el, 3, 12)
+    dG = sp.csr_matrix((np.einsum("ei,eik->ek", ghat, A).ravel(), (np.repeat(np.arange(n_el), 12), ecols.ravel())),
+                       shape=(n_el, n))
+    k, j = np.arange(n_lab), np.arange(nR)
+    Yfix = sp.csr_matrix((np.ones(n_lab + nR + n_mu),
+                          (np.concatenate([k, o_R + j, o_mu + np.arange(n_mu)]),
+                           np.concatenate([off["s"] + k, off["R"] + j, off["mu"] + np.arange(n_mu)]))),
+                         shape=(o_mu + n_mu, n))
+    Y = (Yfix + sp.vstack([sp.csr_matrix((o_g, n)), T @ dG, sp.csr_matrix((n_mu, n))])).tocsr()
+    Hsp = sp.csr_matrix((Hy[2], (Hy[0], Hy[1])), shape=(o_mu + n_mu, o_mu + n_mu))
+    H = Y.T @ Hsp @ Y
+    # the element stretches' own curvature, weighted by dU/dG_e
+    P = np.eye(3)[None] - ghat[:, :, None] * ghat[:, None, :]
+    E = np.einsum("eki,ekl,elj->eij", A, P, A) / Gn[:, None, None]
+    c = 1.0 / (2.0 * ds)
+    for i_loc, p, Li in ((3, pa, Lam[ia]), (9, pb, Lam[ib])):
+        sl = slice(i_loc, i_loc + 3)
+        gp = np.sum(ghat * p, axis=1)
+        E[:, sl, sl] += c * (0.5 * (p[:, :, None] * ghat[:, None, :] + ghat[:, :, None] * p[:, None, :])
+                             - gp[:, None, None] * np.eye(3)[None])
+        X_ = c * hat(ghat) @ np.swapaxes(Li, 1, 2)                           # d^2/dsigma_i d dr_b
+        E[:, sl, 6:9] += X_
+        E[:, sl, 0:3] -= X_
+        E[:, 6:9, sl] += np.swapaxes(X_, 1, 2)
+        E[:, 0:3, sl] -= np.swapaxes(X_, 1, 2)
+    E *= dU_dG[:, None, None]
+    rows = np.broadcast_to(ecols[:, :, None], E.shape).ravel()
+    cols = np.broadcast_to(ecols[:, None, :], E.shape).ravel()
+    H = H + sp.csr_matrix((E.ravel(), (rows, cols)), shape=(n, n))
+    if grav:
+        rod_idx = (6 * nodes[:, :, None] + np.arange(3)).ravel()
+        lab = np.broadcast_to(off["s"] + k[:, None, None], (n_lab, 4, 3)).ravel()
+        v = (-(fp.mbar[:, None] * dNw)[:, :, None] * g[None, None, :]).ravel()
+        H = H + sp.csr_matrix((np.concatenate([v, v, -fp.mbar * (d2X @ g)]),
+                               (np.concatenate([rod_idx, lab, off["s"] + k]),
+                                np.concatenate([lab, rod_idx, off["s"] + k]))), shape=(n, n))
+    return U, grad, H.tocsr()
+
+
+def fluid_kinetic_metric(s, r, mbar, ds, periodic=False, period=None):
+    """The fluid's kinetic metric at one configuration (docs/theory.md §10.5, "Initial momenta"):
+
+        K_f = 1/2 sum_k mbar_k |Xdot_k|^2,   Xdot_k = sum_i N_i(s_k) rdot_i + X'(s_k) sdot_k,
+
+    as the sparse (n_nodes 6 + M+1)^2 matrix Jx^T diag(mbar) Jx in the ordering [rod (rdot, omega) 6/node |
+    sdot (M+1)] (the s block of :func:`newton_offsets`; no omega entries: the plug flow has no rotary
+    inertia, §10.0).  Returns ``(metric CSR, Jx)``, Jx (3(M+1), n) mapping velocities to the labels' Xdot.
+    """
+    n_nodes, n_lab = len(r), len(s)
+    nodes, Nw, _, _, dX, _ = centreline_and_weights(s, r, ds, periodic, period)
+    k = np.repeat(np.arange(n_lab), 4)
+    rr = (3 * k[:, None] + np.arange(3)).ravel()
+    rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
+    rv = np.repeat(Nw.ravel(), 3)
+    lr = (3 * np.arange(n_lab)[:, None] + np.arange(3)).ravel()
+    lc = np.repeat(6 * n_nodes + np.arange(n_lab), 3)
+    n = 6 * n_nodes + n_lab
+    Jx = sp.csr_matrix((np.concatenate([rv, dX.ravel()]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
+                       shape=(3 * n_lab, n))
+    return (Jx.T @ sp.diags(np.repeat(np.asarray(mbar, dtype=np.float64), 3)) @ Jx).tocsr(), Jx
