@@ -235,3 +235,26 @@ def test_the_stiff_band_case_of_the_diagnosis_runs_with_the_constraint():
         sim.step()
         worst = max(worst, abs(sim.monitors()["energy"] / E0 - 1))
     assert worst < 1e-2
+
+
+def test_what_the_constrained_rod_cannot_do_yet_is_refused_in_one_line():
+    """Statics and modes know the stretch-shear energy, not the constraint (they returned zero frequencies);
+    a straight rod held at both ends has an indeterminate tension (its Newton matrix is singular)."""
+    from varint.errors import SceneError, VarintError
+    from varint.modes_api import scene_modes
+
+    scene = rod_scene(nodes=7, ends=("clamped", "free"), gravity=[0.0, -9.81, 0.0])
+    scene.rod["constraint"] = "inextensible_unshearable"
+    with pytest.raises(VarintError, match="inextensible, unshearable rod"):
+        scene_modes(scene)
+    with pytest.raises(VarintError, match="inextensible, unshearable rod"):
+        scene_modes(scene, about="static")
+    held = rod_scene(nodes=7, ends=("pinned", "pinned"))
+    held.rod["constraint"] = "inextensible_unshearable"
+    with pytest.raises(SceneError, match="indeterminate tension"):
+        build_model(held)
+    bent = rod_scene(nodes=7, ends=("pinned", "pinned"), initial={"curvature": [0.0, 0.0, 1.0]})
+    bent.rod["constraint"] = "inextensible_unshearable"
+    sim = Simulation(build_model(bent))
+    sim.step()
+    assert sim.monitors()["rod_constraint_residual"] < 1e-12

@@ -22,9 +22,12 @@ Euler-Lagrange equations whatever blocks are present.
 Layouts (documented because checkpoints store them; docs/output.md)
 -------------------------------------------------------------------
 step unknowns ``z``
-    ``[tube inertial q_{n+1} | tube algebraic lam | rod (b_j, xi_j) on the support mask, node-major]``
+    ``[tube inertial q_{n+1} | tube algebraic lam | rod (b_j, xi_j) on the support mask, node-major |
+    rod multipliers n (inextensible rod: N x ncomp, element-major)]``
     with b_j = Lambda_j^n^T (r_j^{n+1} - r_j^n) (body-frame displacement) and
     xi_j = cay^-1(Lambda_j^n^T Lambda_j^{n+1}): the charts of the r and Lambda blocks.
+half-level unknowns ``lam`` (``State.lam``)
+    ``[tube algebraic lam (quasistatic radii, multipliers mu) | rod multipliers n]`` of the last step
 level vector ``q`` (``State.q``)
     ``[tube q | rod r (relative to the floating origin) | rod Lambda | rod origin (3)]``
 momenta ``p`` (``State.p``)
@@ -68,6 +71,8 @@ class Model:
         self._layout()
         #: non-conservative forces (discrete Lagrange-d'Alembert, varint.forces.Force), every part's
         self.forces = [f for part in (self.tube, self.rod) if part is not None for f in getattr(part, "forces", [])]
+        #: the evolving data at t = 0 (a force heats them in place as a run goes: every new run starts from these)
+        self.initial_data = self.state_data()
         self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
 
     # -- layout -----------------------------------------------------------------------
@@ -181,7 +186,8 @@ class Model:
         u[1:-1] = t.v_init[t.layout["s"]]  # the closed ends' labels do not move along the tube
         nodes, Nw, dNw, X, dX, _ = centreline_and_weights(cfg.s, rod.r0, t.ds)
         sdot = u / np.linalg.norm(dX, axis=1)
-        Xdot = np.einsum("ka,kac->kc", Nw, rod.v0[nodes]) + dX * sdot[:, None]
+        v_nodes = rod.v0 * rod.mask[:, :3]  # a held node does not move, whatever rod.initial.velocity says
+        Xdot = np.einsum("ka,kac->kc", Nw, v_nodes[nodes]) + dX * sdot[:, None]
         mbar = t.label_mass_all
         rod_p = np.zeros((rod.N + 1, 3))
         np.add.at(rod_p, nodes.ravel(), ((mbar[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))

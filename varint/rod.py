@@ -157,6 +157,16 @@ class RodPart:
         self.constrained = rod.constraint == "inextensible_unshearable"
         self.ncomp = 3 if self.dim == 3 else 2
         self.nlam = self.N * self.ncomp if self.constrained else 0
+        if self.constrained:
+            held = [e for e in (rod.ends.s0, rod.ends.sL) if e in ("clamped", "pinned")]
+            if len(held) == 2 and not any((rod.initial or {}).get("curvature") or ()):
+                # sum_e ds dGamma_1,e = (dr_N - dr_0).t = 0: the tension of a taut inextensible rod between two
+                # held ends is indeterminate (one multiplier is free, the Newton matrix singular)
+                raise ValueError("rod.constraint: a straight inextensible rod held at both ends has an indeterminate "
+                                 "tension; give rod.initial.curvature, free an end, or use constraint = 'none'")
+            if (rod.initial or {}).get("shape") == "steady_rotation":
+                raise ValueError("rod.initial.shape: 'steady_rotation' is not available with rod.constraint = "
+                                 "'inextensible_unshearable' in this version (its statics need the constraint)")
         self.w = np.full(self.N + 1, self.ds)
         self.w[0] = self.w[-1] = 0.5 * self.ds
         #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
@@ -244,7 +254,7 @@ class RodPart:
         Om1, Ga1 = self.strains(Lam_1, r_1)
         Om, Ga = 0.5 * (Om0 + Om1), 0.5 * (Ga0 + Ga1)
         dG = Ga - CHI
-        W = 0.5 * np.sum(sec.J * Om * Om, axis=-1) + 0.5 * np.sum(sec.K * dG * dG, axis=-1)
+        W = 0.5 * np.sum(sec.J * Om * Om, axis=-1) + 0.5 * np.sum(self.K_energy * dG * dG, axis=-1)
         mu = np.sqrt(np.sum(Ga * Ga, axis=-1)) if self.paper_measure else 1.0
         rm = 0.5 * (r_n + r_1)
         grav = sec.rhoA * np.sum(self.g * (rm[..., :-1, :] + rm[..., 1:, :]), axis=-1) * 0.5
@@ -262,7 +272,7 @@ class RodPart:
         node = np.empty((B, self.N + 1), dtype=c)
         consts = getattr(self, "_cs_consts", None)
         if consts is None or consts[0] != load_factor:  # the kernel's complex constants, built once per load
-            consts = (load_factor, sec.inertia.astype(c), sec.J.astype(c), sec.K.astype(c),
+            consts = (load_factor, sec.inertia.astype(c), sec.J.astype(c), self.K_energy.astype(c),
                       (load_factor * self.g).astype(c), (load_factor * self.force).astype(c))
             self._cs_consts = consts
         # the levels are real (only the perturbations sig, dr are complex): no conversion needed
@@ -428,14 +438,6 @@ class RodPart:
             out[:, d] += np.bincount(owners[c], weights=de[b], minlength=N + 1)
             out[c::2, d] += dn[b, c::2]
         return out
-
-    def discrete_forces(self, h, Lam):
-        """Sum of the Lagrange-d'Alembert forces at one level (f^- with the level-n frames, f^+ with
-        level n+1), shape (N+1, 6)."""
-        f = np.zeros((self.N + 1, 6))
-        for force in self.forces:
-            f += force.discrete(h, Lam)
-        return f
 
     def generalised_forces(self, Lam, load_factor=1.0):
         """Static generalised force of the non-conservative forces, (N+1, 6)."""

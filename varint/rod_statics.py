@@ -27,6 +27,15 @@ def _rod(model):
     return model.rod if hasattr(model, "rod") else model
 
 
+def _unconstrained(rod, what):
+    """Statics and modes here know the stretch-shear energy, not the constraint that replaces it."""
+    if rod.constrained:
+        from .errors import VarintError
+
+        raise VarintError(f"{what} of the inextensible, unshearable rod (rod.constraint) are not available in this "
+                          "version (they need the constraint in the static Newton and a constrained eigenproblem)")
+
+
 def _potential_gradient(model, Lam, r, load_factor=1.0):
     """d(-U)/d(dr, sigma) of the potential at a configuration (N+1, 6), including the tip torque."""
     model = _rod(model)
@@ -92,6 +101,7 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     Levenberg shift of the Hessian (1e-10 of its diagonal) leaves them at rest.
     """
     model = _rod(model)
+    _unconstrained(model, "static equilibria")
     import scipy.sparse.linalg as spla
 
     mask = model.mask
@@ -261,6 +271,7 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
     model = _rod(model)
+    _unconstrained(model, "modes")
     from .analysis import gyroscopic_modes_of, modes_of, sparse_gyroscopic_modes_of, sparse_modes_of
 
     mask = model.mask

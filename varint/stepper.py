@@ -185,7 +185,7 @@ class Step:
     def explicit(self):
         """True when the residual is affine in z with a constant diagonal Jacobian (Stormer-Verlet on the
         tube): one linear solve is then the exact step, no Newton iteration is needed."""
-        return all(t.constant_diagonal_jacobian() for t in self.terms)
+        return all(t.constant_diagonal_jacobian() for t in self.terms) and not self.model.forces
 
 
 def make_scheme(model, h, name=None):
@@ -234,6 +234,8 @@ class Simulation:
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
+        if state is None and model.initial_data:
+            model.set_state_data(model.initial_data)  # a rerun of the model starts from t = 0's data, not a heated run's
         self.state = state if state is not None else State(0, 0.0, *model.initial_state(self.h), data=model.state_data())
         self.stats = StepStats()
         self._factor = None
@@ -355,6 +357,8 @@ class Simulation:
             z_rest = self.predictor(rest=True)
             # damped full Newton: it backs off from iterates outside the domain instead of stopping there
             res2 = newton_damped(F, Jf, z_rest, self.scale, self.tol, 4 * self.max_iter)
+            self.stats.fallbacks += 1
+            res2.iterations += res.iterations
             res2.n_residual += res.n_residual
             res2.n_jacobian += res.n_jacobian
             res = res2
@@ -364,7 +368,7 @@ class Simulation:
             self.stats.fallbacks += 1
             res2 = newton_damped(F, Jf, z0, self.scale, self.tol, 4 * self.max_iter)
             if not res2.converged:
-                res2 = newton_damped(F, Jf, np.zeros_like(z0), self.scale, self.tol, 4 * self.max_iter)
+                res2 = newton_damped(F, Jf, self.predictor(rest=True), self.scale, self.tol, 4 * self.max_iter)
             res2.n_residual += res.n_residual
             res2.n_jacobian += res.n_jacobian
             res2.iterations += res.iterations
@@ -440,18 +444,8 @@ class Simulation:
         """Invariants and energies at the current level (each part's, summed where they add up)."""
         if self.model.coupled:
             return self._coupled_monitors()
-        parts = []
-        if self.model.tube is not None:
-            parts.append(self._tube_monitors())
-        if self.model.rod is not None:
-            parts.append(self._rod_monitors())
-        out = parts[0]
-        for extra in parts[1:]:
-            for k, v in extra.items():
-                if k in ("kinetic_energy", "energy", "mass", "linear_momentum", "angular_momentum"):
-                    out[k] = out[k] + v
-                elif k != "newton_iterations":
-                    out[k] = v
+        # one part: the tube's blocks on the fixed centreline, or the rod alone
+        out = self._tube_monitors() if self.model.tube is not None else self._rod_monitors()
         out["newton_iterations"] = self.stats.iterations
         return out
 
@@ -618,7 +612,16 @@ class Simulation:
         # (gravity, the tip force) take the origin's part here
         mbar = t.label_mass_all
         M_tot = float(np.sum(rod.node_mass) + np.sum(mbar))
-        U -= M_tot * float(np.dot(rod.g, o_ref)) + float(np.dot(rod.force, o_ref))
+        M_grav = M_tot
+        if rod.paper_measure:  # the rod's gravitational mass is rho A sum_e ds |Gamma_e| at the evaluation point
+            if t.nlam == 0 or st.q_prev is None:
+                _, Ga = rod.strains(Lam, r)
+            else:
+                Om0, Ga0 = rod.strains(pt.Lam_n, pt.r_n)
+                Om1, Ga1 = rod.strains(pt.Lam_n @ cay(pt.xi), pt.r_1)
+                Ga = 0.5 * (Ga0 + Ga1)
+            M_grav = float(rod.section.rhoA * np.sum(rod.ds * np.linalg.norm(Ga, axis=1)) + np.sum(mbar))
+        U -= M_grav * float(np.dot(rod.g, o_ref)) + float(np.dot(rod.force, o_ref))
         out["kinetic_energy"] = Kf + Kr + Kw
         out["energy_fluid_kinetic"] = Kf
         out["energy_rod_kinetic"] = Kr
