@@ -382,10 +382,12 @@ class Simulation:
                 where = (f"in Newton iterate {res.iterations}" if res.iterations else
                          "at the start of the step (from the last velocity extrapolated, and from rest)")
                 raise self._folded(n1, problem, where)
+            advice = ("the step's equations are singular (a redundant support or constraint?): a smaller time.step "
+                      "will not help" if "singular" in res.message else "try a smaller time.step")
             raise SolverError(
                 f"Newton failed at {self._where(n1)}: {res.message}; "
                 f"scaled update {res.error:.3g}, contraction rate {res.rate:.3g} after {res.iterations} iterations; "
-                "try a smaller time.step", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
+                f"{advice}", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
         if res.message != "damped Newton":
             self._factor = res.factor
         return res.z, res.iterations, res.n_residual, res.n_jacobian
