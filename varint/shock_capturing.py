@@ -40,8 +40,10 @@ import scipy.sparse as sp
 from numba import njit
 
 from .forces import Declaration, Force
+from .geometry import _local_gradient, _local_hessian, parcel_derivatives, parcel_volumes
 
-__all__ = ["ShockCapturing", "mean_value_pressure", "viscous_pressure", "heated_entropy"]
+__all__ = ["ShockCapturing", "SwellingShockCapturing", "make_shock_capturing", "avf_volume_gradients",
+           "mean_value_pressure", "viscous_pressure", "heated_entropy"]
 
 #: below this |V1/V0 - 1| the mean-value pressure's derivative is taken from its Taylor series
 _SERIES = 1e-3
@@ -79,15 +81,19 @@ def _mean_value_pressure(V0, V1, K, gamma, P, dP):
 
 @njit(cache=True)
 def _viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL, Q, dQ):
-    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A h), rho and c at Vbar; dQ/dV1."""
+    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A_k h), rho and c at Vbar; dQ/dV1.
+
+    ``A`` per parcel: the tube's cross-section (rigid uniform tube) or the parcel's mean cross-section at
+    level n, V_k^n / (s_{k+1}^n - s_k^n) (a swelling tube), so that du is the jump of the label velocity
+    that would compress the parcel's volume by V1 - V0 at that cross-section."""
     for k in range(V0.shape[0]):
-        du = (V1[k] - V0[k]) / (A * h)
+        du = (V1[k] - V0[k]) / (A[k] * h)
         if du >= 0.0:
             Q[k] = 0.0
             dQ[k] = 0.0
             continue
         d = -du
-        dd = -1.0 / (A * h)  # d(d)/dV1: compressing further (V1 smaller) raises d
+        dd = -1.0 / (A[k] * h)  # d(d)/dV1: compressing further (V1 smaller) raises d
         Vb = 0.5 * (V0[k] + V1[k])
         rho = m[k] / Vb
         c = math.sqrt(gamma * K[k] * Vb ** (-gamma) / rho)
@@ -116,10 +122,11 @@ def mean_value_pressure(V0, V1, K, gamma):
 
 
 def viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL):
-    """(Q, dQ/dV1) per parcel (module docstring, item 1)."""
+    """(Q, dQ/dV1) per parcel (module docstring, item 1); ``A`` a cross-section, scalar or per parcel."""
     V0, V1, m, K = (np.ascontiguousarray(a, dtype=np.float64) for a in (V0, V1, m, K))
+    A = np.ascontiguousarray(np.broadcast_to(np.asarray(A, dtype=np.float64), V0.shape))
     Q, dQ = np.empty_like(V0), np.empty_like(V0)
-    _viscous_pressure(V0, V1, m, K, float(gamma), float(A), float(h), float(cQ), float(cL), Q, dQ)
+    _viscous_pressure(V0, V1, m, K, float(gamma), A, float(h), float(cQ), float(cL), Q, dQ)
     return Q, dQ
 
 
@@ -225,3 +232,356 @@ class ShockCapturing(Force):
         W = np.maximum(-Q * (V1 - V0), 0.0)  # Q > 0 only where V1 < V0: W >= 0 (the max guards round-off)
         t.S[:] = heated_entropy(t.S, V1, self._K(), W, self.gamma, self.cv)
         self.last_work = float(np.sum(W))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# A swelling tube: the discrete gradient of each parcel volume in its own unknowns (labels and radii)
+#
+# V_k(s_k, s_{k+1}, R) = int_{s_k}^{s_{k+1}} pi R(x)^2 dx with R piecewise linear between the nodes
+# (varint.geometry) is not linear in its unknowns, so the midpoint gradient no longer gives
+# grad V . (z1 - z0) = V1 - V0.  We use the averaged-vector-field discrete gradient (Quispel & McLaren,
+# J. Phys. A 41, 045206 (2008); Harten, Lax & van Leer's mean-value form),
+#
+#     Gbar_k = int_0^1 grad V_k(z0 + tau (z1 - z0)) dtau,   so that  Gbar_k . (z1 - z0) = V_k^{n+1} - V_k^n
+#
+# exactly (fundamental theorem of calculus), symmetric in the two levels and a second-order approximation
+# of grad V_k at the midpoint.  Along the segment V_k is a piecewise polynomial in tau (pieces end where a
+# label crosses a node; V is C^1 there, its gradient continuous): on each piece grad V_k has degree <= 4
+# in tau and tau * Hess V_k degree <= 4, so three Gauss-Legendre points per piece integrate both exactly.
+# Because grad V_k is continuous at the pieces' ends, d Gbar_k / d z1 = int_0^1 tau Hess V_k dtau (the
+# moving ends contribute nothing) -- the exact Newton block.  Each parcel's integral involves only its
+# own unknowns: s_k, s_{k+1} and the radii of the nodes it covers at either level.
+
+_GAUSS_T = np.array([0.5 - 0.5 * math.sqrt(0.6), 0.5, 0.5 + 0.5 * math.sqrt(0.6)])
+_GAUSS_W = np.array([5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0])
+
+
+@njit(cache=True, inline="always")
+def _elem(x, ds, N, periodic):
+    """Element (unwrapped when periodic, clamped to 0..N-1 when closed) and local coordinate of x."""
+    u = x / ds
+    e = math.floor(u)
+    if not periodic:
+        e = min(max(e, 0), N - 1)
+    return e, u - e
+
+
+@njit(cache=True)
+def _parcel_valid(a0, a1, b0, b1, ds, N, periodic):
+    """Both levels of parcel (a, b) finite and in order, and (periodic) within two periods: then every point of
+    the segment between them is too, and the kernels stay in their buffers."""
+    for x in (a0, a1, b0, b1):
+        if not (abs(x / ds) < 2.0 ** 52):
+            return False
+    if not (b0 > a0 and b1 > a1):
+        return False
+    return not (periodic and max(b0, b1) - min(a0, a1) > 2.0 * N * ds)
+
+
+@njit(cache=True)
+def _crossings(x0, x1, ds, N, periodic, out, n):
+    """Append to ``out`` the tau in (0, 1) where x0 + tau (x1 - x0) crosses a node (an interior one when closed)."""
+    if x1 == x0:
+        return n
+    lo, hi = min(x0, x1), max(x0, x1)
+    j = math.floor(lo / ds) + 1
+    while j * ds < hi:
+        if periodic or 0 < j < N:
+            tau = (j * ds - x0) / (x1 - x0)
+            if 0.0 < tau < 1.0:
+                out[n] = tau
+                n += 1
+        j += 1
+    return n
+
+
+@njit(cache=True)
+def _avf_volume(s0, s1, R0, R1, ds, periodic, nlab, X, want_H, gT, gW,
+                grow, gcol, gval, hrow, hcol, hval):
+    """Averaged-vector-field gradients Gbar_k of every parcel volume (COO rows k, config columns) and, with
+    ``want_H``, sum_k X_k int_0^1 tau Hess V_k dtau (COO in configuration index space).
+
+    Configuration index space as varint.geometry: label i is column i, node j column nlab + j.  Returns the
+    number of G and H entries written (the arrays are sized by the caller from :func:`_avf_sizes`).
+    """
+    M = s0.shape[0] - 1
+    nR = R0.shape[0]
+    N = nR if periodic else nR - 1
+    taus = np.empty(64)
+    Rl = np.empty(1)
+    dummy = np.empty(1)
+    pg = 0
+    ph = 0
+    for k in range(M):
+        a0, a1, b0, b1 = s0[k], s1[k], s0[k + 1], s1[k + 1]
+        if not _parcel_valid(a0, a1, b0, b1, ds, N, periodic):
+            # a folded or non-finite parcel (a Newton iterate off the lattice's domain): NaN entries, no
+            # out-of-range access; the step then backs off (varint.stepper)
+            for i in range(4):
+                c = k if i == 0 else (k + 1 if i == 1 else nlab + i - 2)
+                grow[pg] = k
+                gcol[pg] = c
+                gval[pg] = np.nan
+                pg += 1
+                if want_H:
+                    for jx in range(4):
+                        hrow[ph] = c
+                        hcol[ph] = k if jx == 0 else (k + 1 if jx == 1 else nlab + jx - 2)
+                        hval[ph] = np.nan
+                        ph += 1
+            continue
+        lo = _elem(min(a0, a1), ds, N, periodic)[0]
+        hi = _elem(max(b0, b1), ds, N, periodic)[0]
+        nn = hi - lo + 2  # local nodes lo .. hi + 1
+        nloc = 2 + nn
+        if Rl.shape[0] < nn:
+            Rl = np.empty(2 * nn)
+        G = np.zeros(nloc)
+        H = np.zeros((nloc, nloc))
+        gt = np.empty(nloc)
+        Ht = np.empty((nloc, nloc))
+        # the pieces of [0, 1]: ends where either label crosses a node
+        need = 2 + int(abs(a1 - a0) / ds) + int(abs(b1 - b0) / ds) + 4
+        if taus.shape[0] < need:
+            taus = np.empty(2 * need)
+        taus[0] = 0.0
+        n = _crossings(a0, a1, ds, N, periodic, taus, 1)
+        n = _crossings(b0, b1, ds, N, periodic, taus, n)
+        taus[n] = 1.0
+        n += 1
+        taus[:n].sort()
+        for p in range(n - 1):
+            t_lo, t_hi = taus[p], taus[p + 1]
+            L = t_hi - t_lo
+            if L <= 0.0:
+                continue
+            for q in range(3):
+                tau = t_lo + gT[q] * L
+                w = gW[q] * L
+                for i in range(nn):
+                    j = lo + i
+                    jj = j % nR if periodic else j
+                    Rl[i] = R0[jj] + tau * (R1[jj] - R0[jj])
+                ea, ta = _elem(a0 + tau * (a1 - a0), ds, N, periodic)
+                eb, tb = _elem(b0 + tau * (b1 - b0), ds, N, periodic)
+                m = 2 + eb - ea + 2
+                gl = gt[:m]
+                r0, r1, ra0, rb0, ra1, rb1 = _local_gradient(dummy, Rl, ds, False, k, ea - lo, ta, eb - lo, tb, gl)
+                off = ea - lo  # local node of gl[2]
+                G[0] += w * gl[0]
+                G[1] += w * gl[1]
+                for i in range(2, m):
+                    G[off + i] += w * gl[i]
+                if want_H:
+                    Hl = Ht[:m, :m]
+                    _local_hessian(ds, ea - lo, ta, eb - lo, tb, r0, r1, ra0, rb0, ra1, rb1, Hl)
+                    wt = w * tau
+                    for i in range(m):
+                        ii = i if i < 2 else off + i
+                        for jx in range(m):
+                            jj2 = jx if jx < 2 else off + jx
+                            H[ii, jj2] += wt * Hl[i, jx]
+        for i in range(nloc):
+            if i == 0:
+                c = k
+            elif i == 1:
+                c = k + 1
+            else:
+                j = lo + i - 2
+                c = nlab + (j % nR if periodic else j)
+            grow[pg] = k
+            gcol[pg] = c
+            gval[pg] = G[i]
+            pg += 1
+            if want_H:
+                for jx in range(nloc):
+                    if jx == 0:
+                        c2 = k
+                    elif jx == 1:
+                        c2 = k + 1
+                    else:
+                        j = lo + jx - 2
+                        c2 = nlab + (j % nR if periodic else j)
+                    hrow[ph] = c
+                    hcol[ph] = c2
+                    hval[ph] = X[k] * H[i, jx]
+                    ph += 1
+    return pg, ph
+
+
+@njit(cache=True)
+def _avf_sizes(s0, s1, ds, nR, periodic):
+    """Number of G and H entries :func:`_avf_volume` writes."""
+    M = s0.shape[0] - 1
+    N = nR if periodic else nR - 1
+    ng = 0
+    nh = 0
+    for k in range(M):
+        if not _parcel_valid(s0[k], s1[k], s0[k + 1], s1[k + 1], ds, N, periodic):
+            ng += 4
+            nh += 16
+            continue
+        lo = _elem(min(s0[k], s1[k]), ds, N, periodic)[0]
+        hi = _elem(max(s0[k + 1], s1[k + 1]), ds, N, periodic)[0]
+        nloc = 2 + hi - lo + 2
+        ng += nloc
+        nh += nloc * nloc
+    return ng, nh
+
+
+def _avf_coo(s0, s1, R0, R1, ds, periodic, X):
+    s0, s1, R0, R1 = (np.ascontiguousarray(a, dtype=np.float64) for a in (s0, s1, R0, R1))
+    nlab, nR = len(s0), len(R0)
+    ng, nh = _avf_sizes(s0, s1, float(ds), nR, bool(periodic))
+    want_H = X is not None
+    if not want_H:
+        nh = 0
+    Xw = np.ascontiguousarray(X, dtype=np.float64) if want_H else np.zeros(len(s0) - 1)
+    grow, gcol, gval = np.empty(ng, np.int64), np.empty(ng, np.int64), np.empty(ng)
+    hrow, hcol, hval = np.empty(nh, np.int64), np.empty(nh, np.int64), np.empty(nh)
+    _avf_volume(s0, s1, R0, R1, float(ds), bool(periodic), nlab, Xw, want_H, _GAUSS_T, _GAUSS_W,
+                grow, gcol, gval, hrow, hcol, hval)
+    return (grow, gcol, gval), (hrow, hcol, hval)
+
+
+def avf_volume_gradients(s0, s1, R0, R1, ds, periodic, X=None):
+    """Discrete gradients of the parcel volumes between two configurations (labels s, nodal radii R).
+
+    Returns ``G`` (M, nlab + nR) sparse with ``G @ (c1 - c0) = V(c1) - V(c0)`` row by row (c = concat(s, R)),
+    and, with weights ``X`` (M,), ``HX = sum_k X_k d(G_k)/d c1`` (nlab + nR square, sparse): the block the
+    Newton Jacobian needs (see the section comment above).
+    """
+    (grow, gcol, gval), (hrow, hcol, hval) = _avf_coo(s0, s1, R0, R1, ds, periodic, X)
+    nlab, n = len(s0), len(s0) + len(R0)
+    G = sp.csr_matrix((gval, (grow, gcol)), shape=(nlab - 1, n))
+    if X is None:
+        return G
+    return G, sp.csr_matrix((hval, (hrow, hcol)), shape=(n, n))
+
+
+#: two Gauss-Legendre points on [0, 1]: exact for the cubic gradient of the tube law's wall energy along a segment
+_GAUSS2_T = (0.5 - math.sqrt(3.0) / 6.0, 0.5 + math.sqrt(3.0) / 6.0)
+
+
+class SwellingShockCapturing(ShockCapturing):
+    """``[shock_capturing]`` where the parcel volumes are not linear in the unknowns: a dynamic ``[wall]``
+    (linear law or tube law) or a rigid tube of varying cross-section (``tube.area_table``).
+
+    The step's forces, in configuration space and then mapped to the inertial unknowns by the tube's B,
+    are f^- = f^+ = (h/2) F with
+
+        F = sum_k (Ptilde_k + Q_k) Gbar_k + grad U_int(z_mid) - [gbar U_wall - grad U_wall(z_mid)],
+
+    Gbar_k the discrete gradient of V_k (:func:`avf_volume_gradients`); the second term cancels the
+    internal energy's midpoint force, which the midpoint potential term adds; the third is non-zero only
+    for the tube law (its wall energy is a quartic in R, gbar its averaged vector field, exact with two
+    Gauss points): the linear wall law, the external pressure's p_ext Vol(R) and gravity are at most
+    quadratic, so their midpoint gradient is already a discrete gradient.  With the midpoint kinetic
+    term the kinetic energy then changes by F . (z1 - z0) = sum_k (Ptilde_k + Q_k) (V_k^{n+1} - V_k^n)
+    - (U_wall^{n+1} - U_wall^n) - (U_ext^{n+1} - U_ext^n), and the heating adds -sum_k Q_k dV_k to the
+    internal energy: the total is exact.  Q's compression rate uses the parcel's mean cross-section at
+    level n (``_viscous_pressure``).  The Newton block is exact (tests/test_shock_capturing.py).
+    """
+
+    def __init__(self, tube, keys):
+        from . import terms as T
+
+        eos = tube.eos
+        self.tube = tube
+        self.gamma, self.cv = eos.gamma, eos.cv
+        self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
+        if tube.nlam:
+            raise ValueError("shock capturing: the swelling tube needs every unknown to carry inertia (a dynamic wall)")
+        self.nz = tube.nz
+        self.nlab = tube.M + 1
+        self.Bq = tube.B[:, :tube.nq].tocsr()
+        self.BqT = self.Bq.T.tocsr()
+        self.internal = next(t for t in tube.terms if isinstance(t, T.InternalEnergy))
+        #: wall terms the midpoint rule does not integrate exactly (the tube law); see the class docstring
+        self.wall_terms = [t for t in tube.terms if isinstance(t, T.WallTubeLaw)]
+        self.last_work = 0.0
+
+    # -- the two levels --------------------------------------------------------------------
+
+    def _cfg(self, q, lam):
+        return self.tube.config(np.concatenate([q, lam]))
+
+    def _levels(self, pt):
+        t = self.tube
+        c0, c1 = self._cfg(pt.q0, pt.lam), self._cfg(pt.q1, pt.lam)
+        V0 = parcel_volumes(c0.s, c0.R, t.ds, t.periodic)
+        V1 = parcel_volumes(c1.s, c1.R, t.ds, t.periodic)
+        return c0, c1, V0, V1
+
+    def pressures(self, pt, levels=None):
+        """Per parcel at the step ``pt``: (X, dX/dV1, Q, V0, V1) with X = Ptilde + Q, the pressure that
+        multiplies the discrete gradient of V_k (the midpoint pressure is cancelled separately)."""
+        c0, c1, V0, V1 = levels if levels is not None else self._levels(pt)
+        K = self._K()
+        g = self.gamma
+        P, dP = mean_value_pressure(V0, V1, K, g)
+        A0 = V0 / np.diff(c0.s)  # the parcels' mean cross-section at level n
+        Q, dQ = viscous_pressure(V0, V1, self.tube.m, K, g, A0, pt.h, self.cQ, self.cL)
+        return P + Q, dP + dQ, Q, V0, V1
+
+    def _path(self, pt, tau):
+        return self._cfg(pt.q0 + tau * (pt.q1 - pt.q0), pt.lam)
+
+    # -- Force interface ---------------------------------------------------------------------
+
+    def config_force(self, pt):
+        """F of the class docstring in configuration index space (labels, then radii)."""
+        t = self.tube
+        lv = self._levels(pt)
+        c0, c1 = lv[:2]
+        X = self.pressures(pt, lv)[0]
+        (gr, gc, gv), _ = _avf_coo(c0.s, c1.s, c0.R, c1.R, t.ds, t.periodic, None)
+        F = np.bincount(gc, weights=gv * X[gr], minlength=self.nlab + t.nR)  # Gbar^T X
+        gs, gR, gmu = np.zeros(self.nlab), np.zeros(t.nR), np.zeros(0)
+        cm = self._path(pt, 0.5)
+        self.internal.gradient(cm, {}, gs, gR, gmu)
+        for term in self.wall_terms:
+            ws, wR = np.zeros(self.nlab), np.zeros(t.nR)
+            for tau in _GAUSS2_T:
+                term.gradient(self._path(pt, tau), {}, ws, wR, gmu)
+            wR *= 0.5  # the two Gauss weights
+            mR = np.zeros(t.nR)
+            term.gradient(cm, {}, np.zeros(self.nlab), mR, gmu)
+            gR -= wR - mR
+        return F + np.concatenate([gs, gR])
+
+    def add(self, pt, d, level):
+        """f^- (level 0) = f^+ (level 1) = (h/2) B_q^T F into the tube's inertial block."""
+        d.tube_q += 0.5 * pt.h * (self.BqT @ self.config_force(pt))
+
+    def jacobian(self, pt):
+        """d f^- / dz = (h/2) B_q^T [Gbar^T diag(dX/dV1) grad V(z1) + sum_k X_k dGbar_k/dz1 + H_int(z_mid)/2
+        - (int tau H_wall dtau - H_wall(z_mid)/2)] B_q, every piece exact."""
+        t = self.tube
+        lv = self._levels(pt)
+        c0, c1 = lv[:2]
+        X, dX = self.pressures(pt, lv)[:2]
+        G, HX = avf_volume_gradients(c0.s, c1.s, c0.R, c1.R, t.ds, t.periodic, X)
+        M = t.M
+        zero = np.zeros(M)
+        jr, jc, jv = parcel_derivatives(c1.s, c1.R, t.ds, t.periodic, zero, zero, True, True)[3]
+        n = self.nlab + t.nR
+        J1 = sp.csr_matrix((jv, (jr, jc)), shape=(M, n))
+        A = G.T @ sp.diags(dX) @ J1 + HX
+        cm = self._path(pt, 0.5)
+        r, c, v = self.internal.hessian(cm, {}, t.index)
+        A = A + sp.csr_matrix((0.5 * v, (r, c)), shape=(n, n))
+        for term in self.wall_terms:
+            for tau in _GAUSS2_T:
+                r, c, v = term.hessian(self._path(pt, tau), {}, t.index)
+                A = A - sp.csr_matrix((0.5 * tau * v, (r, c)), shape=(n, n))
+            r, c, v = term.hessian(cm, {}, t.index)
+            A = A + sp.csr_matrix((0.5 * v, (r, c)), shape=(n, n))
+        return sp.csc_matrix(0.5 * pt.h * (self.BqT @ A @ self.Bq))
+
+
+def make_shock_capturing(tube, keys):
+    """The ``[shock_capturing]`` force for ``tube``: the rigid uniform tube's (linear volumes) or the swelling one's."""
+    if not tube.has_wall and tube.scene.tube.area_table is None:
+        return ShockCapturing(tube, keys)
+    return SwellingShockCapturing(tube, keys)

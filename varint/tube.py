@@ -98,9 +98,9 @@ class TubePart:
         #: [shock_capturing]: viscous pressure, energy-exact pressure and heating (varint.shock_capturing)
         self.shock_capturing = None
         if getattr(scene, "shock_capturing", None) is not None:
-            from .shock_capturing import ShockCapturing
+            from .shock_capturing import make_shock_capturing
 
-            self.shock_capturing = ShockCapturing(self, scene.shock_capturing)
+            self.shock_capturing = make_shock_capturing(self, scene.shock_capturing)
             self.forces.append(self.shock_capturing)
 
     # -- layout -------------------------------------------------------------
