@@ -13,7 +13,10 @@ independent truths:
   cantilever with that mass at O(ds^2);
 * a gas in a very stiff clamped tube: the coupled acoustic modes are the fixed tube's lattice modes, and
   approach n pi c / L at O(ds^2);
-* ``varint modes`` on a coupled scene; one-line refusals (--about static, a flowing fluid).
+* statics (Newton in every block at once): a weakly loaded liquid cantilever sags as the heavy rod, a sagging one
+  has the hydrostatic pressure at O(ds^2), a pressurised gas tube stretches by the end caps' thrust exactly and its
+  modes about that state are the stretched Timoshenko beam's with the pressure-softened shear, at O(ds^2);
+* ``varint modes`` (``--about initial`` and ``static``) on a coupled scene; one-line refusals.
 """
 
 import math
@@ -27,13 +30,13 @@ from varint import build_model, parse_scene
 from varint.analysis import modes as tube_modes
 from varint.analysis import timoshenko_cantilever
 from varint.coupled_geometry import centreline
-from varint.coupled_modes import coupled_linearization, coupled_modes
+from varint.coupled_modes import coupled_linearization, coupled_modes, coupled_static, modes_of_linearization
 from varint.coupled_terms import (FluidPotential, fluid_kinetic_metric, fluid_potential_static,
                                   fluid_potential_step)
 from varint.errors import VarintError
 from varint.lie import cay
 from varint.modes_api import scene_modes
-from varint.rod_statics import rod_modes
+from varint.rod_statics import rod_modes, static_equilibrium
 
 from helpers import to_toml
 
@@ -283,6 +286,92 @@ def test_gas_in_a_stiff_clamped_tube_has_the_fixed_tubes_acoustic_modes():
     assert np.all((order > 1.9) & (order < 2.1)), order
 
 
+@pytest.mark.parametrize("fluid,wall", [(GAS, "dynamic"), (LIQUID, None), (LIQUID, "quasistatic")])
+def test_sparse_solver_gives_the_dense_modes(fluid, wall):
+    """Shift-invert Lanczos on the whole pencil (K, M), M singular on the multipliers and quasistatic radii, gives the
+    dense solver's lowest modes (condensed, constraints on their null space) of a clamped tube with more parcels
+    than nodes, to 1e-7."""
+    model = model_of(scene_dict(nodes=16, parcels=21, fluid=fluid, wall=wall, dimension=3))
+    fd = freqs(coupled_modes(model, count=12, method="dense"))
+    fs = freqs(coupled_modes(model, count=12, method="sparse"))
+    assert np.max(np.abs(fs - fd) / fd) < 1e-7
+
+
+# -- statics, and modes about them ------------------------------------------------------------------------
+
+
+def test_liquid_cantilever_sags_as_the_rod_with_the_liquid_mass():
+    """Static equilibrium under a weak gravity (tip deflection 4e-4 L): the tip of the liquid-filled cantilever
+    (labels on the nodes) is the heavy rod's (rod_statics.static_equilibrium with rho A + rho_f A_f) to 1e-6 of the
+    deflection — the difference is second order in the load — and the state is balanced to round-off."""
+    N, R, rho_f = 20, 0.01, 1000.0
+    g = [0.0, -0.01, 0.0]
+    model = model_of(scene_dict(nodes=N + 1, parcels=N, fluid=dict(LIQUID, density=rho_f), radius=R, gravity=g))
+    (Lam, r, zt), info = coupled_static(model)
+    heavy = model_of({"title": "heavy rod", "tube": {"length": 1.0, "nodes": N + 1, "radius": R},
+                      "rod": dict(SECTION, mass_per_length=SECTION["mass_per_length"] + rho_f * math.pi * R * R,
+                                  dimension=2, ends={"s0": "clamped", "sL": "free"}),
+                      "environment": {"gravity": g}, "time": {"step": 1e-3, "end": 1.0}})
+    _, rh, _ = static_equilibrium(heavy)
+    assert np.linalg.norm(r[-1] - rh[-1]) <= 1e-6 * np.linalg.norm(rh[-1] - [1.0, 0.0, 0.0])
+    assert coupled_linearization(model, (Lam, r, zt))["unbalanced"] < 1e-12
+
+
+@pytest.mark.parametrize("wall", [None, "quasistatic"])
+def test_sagging_liquid_cantilever_has_the_hydrostatic_pressure(wall):
+    """Under full gravity (tip 0.34 L down) the multipliers are the hydrostatic law p_k - p_0 = rho_f g . (c_k - c_0),
+    c_k the centre of parcel k on the computed centreline, at second order in ds (errors 1.2e-3 / 3.2e-4 rigid,
+    1.0e-3 / 2.3e-4 quasistatic at 20 / 40 elements)."""
+    g = np.array([0.0, -9.81, 0.0])
+    errs = []
+    for N in (20, 40):
+        model = model_of(scene_dict(nodes=N + 1, parcels=N, fluid=LIQUID, wall=wall, gravity=list(g)))
+        (Lam, r, zt), _ = coupled_static(model)
+        cfg = model.tube.config(zt)
+        c = centreline(0.5 * (cfg.s[:-1] + cfg.s[1:]), r, model.tube.ds)[0]
+        pred = LIQUID["density"] * (c - c[0]) @ g
+        errs.append(np.max(np.abs((cfg.mu - cfg.mu[0]) - pred)) / np.max(np.abs(pred)))
+    assert errs[1] < 5e-4 and math.log2(errs[0] / errs[1]) > 1.8
+
+
+def test_pressurised_gas_tube_prestretch_and_modes_about_it():
+    """A closed clamped-free tube of gas at p_0 = 2 bar in 1 bar outside.  Static: the rod stretches uniformly by
+    eps, EA eps = (p_0 (1 + eps)^-gamma - p_ext) A (the end caps' thrust; scalar root), to 1e-12.  Modes about that
+    state (docs/theory.md §10.7a): the end-cap thrust and the wall tension cancel (zero effective tension) and the
+    pressure softens the shear, so the bending frequencies are the Timoshenko cantilever's with kGA - Delta p A/(1+eps),
+    EI and rho I divided by (1 + eps)^2 (the shear strain of the stretched rod is w' - (1 + eps) theta), and the mass
+    rho A + rho_gas A per reference length — at O(ds^2); the plain Timoshenko beam is 2-3 % off."""
+    from scipy.optimize import brentq
+
+    R = 0.01
+    A = math.pi * R * R
+    sec = dict(SECTION, shear_stiffness=200.0, axial_stiffness=2000.0)
+    p0, p_ext = 2.0e5, 1.0e5
+    eps = brentq(lambda e: sec["axial_stiffness"] * e - (p0 * (1 + e) ** -GAS["gamma"] - p_ext) * A, -0.5, 0.5)
+    dpA = (p0 * (1 + eps) ** -GAS["gamma"] - p_ext) * A
+    truth = timoshenko_cantilever(sec["bending_stiffness"] / (1 + eps) ** 2, sec["shear_stiffness"] - dpA / (1 + eps),
+                                  sec["mass_per_length"] + GAS["density"] * A, sec["rotary_inertia"] / (1 + eps) ** 2,
+                                  1.0, count=2)
+    plain = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"],
+                                  sec["rotary_inertia"], 1.0, count=2)
+    errs = []
+    for N in (20, 40):
+        d = scene_dict(nodes=N + 1, parcels=N, fluid=dict(GAS, pressure=p0), radius=R, section=sec)
+        d["environment"] = {"external_pressure": p_ext}
+        model = model_of(d)
+        (Lam, r, zt), _ = coupled_static(model)
+        assert np.max(np.abs(r[:, 0] - np.linspace(0.0, 1.0 + eps, N + 1))) <= 1e-12
+        f = freqs(modes_of_linearization(model, coupled_linearization(model, (Lam, r, zt)), 4))[:2]
+        errs.append(np.abs(f - truth) / truth)
+        assert np.all(np.abs(f - plain) / plain > 0.015)
+    assert np.all(errs[1] < 3e-4) and np.all(np.log2(errs[0] / errs[1]) > 1.9)
+
+
+def test_free_coupled_tube_has_no_static_equilibrium_one_line():
+    with pytest.raises(VarintError, match="no unique static equilibrium"):
+        coupled_static(model_of(scene_dict(ends=("free", "free"))))
+
+
 # -- varint modes -------------------------------------------------------------------------------------------
 
 
@@ -295,8 +384,10 @@ def test_scene_modes_of_a_coupled_scene_notes_an_unbalanced_initial_state():
     d["environment"] = {"gravity": [0.0, -9.81, 0.0]}
     out = scene_modes(parse_scene(to_toml(d)), count=4, source="hose")
     assert "environment.gravity" in out["note"]
-    with pytest.raises(VarintError, match="about static"):
-        scene_modes(parse_scene(to_toml(d)), about="static", source="hose")
+    static = scene_modes(parse_scene(to_toml(d)), count=4, about="static", source="hose")
+    assert static["about"] == "static" and "note" not in static
+    # the sagging hose's first frequency differs from the straight one's (the weight's geometric stiffness)
+    assert static["modes"][0]["frequency"] != pytest.approx(out["modes"][0]["frequency"], rel=1e-6)
 
 
 def test_flowing_fluid_is_refused_in_one_line():

@@ -34,10 +34,10 @@ import scipy.sparse as sp
 
 from .errors import SolverError
 
-__all__ = ["coupled_modes", "coupled_linearization", "modes_of_linearization"]
+__all__ = ["coupled_modes", "coupled_linearization", "modes_of_linearization", "coupled_static", "initial_configuration"]
 
-#: the dense eigen-solver's limit on the unknowns left after condensation (O(n^3) time, O(n^2) memory)
-DENSE_COUPLED_LIMIT = 4000
+#: above this many step unknowns the modes come from the sparse shift-invert solver (the dense one is O(n^3))
+DENSE_COUPLED_LIMIT = 2000
 
 
 def _refuse(model):
@@ -73,40 +73,68 @@ def _fluid_term(model):
     return cf.fp, (sp.diags(scale) @ cf.P).tocsr(), off
 
 
-def coupled_linearization(model):
-    """Mass and stiffness of the coupled tube about its initial state, in the step unknowns z.
+def _embed(block, start, nz):
+    block = sp.coo_matrix(block)
+    return sp.csr_matrix((block.data, (block.row + start, block.col + start)), shape=(nz, nz))
 
-    Returns a dict: ``M`` and ``K`` (sparse, nz x nz; M zero on the algebraic unknowns), ``inertial`` and
-    ``algebraic`` (indices into z), ``names`` (block name of each z entry), ``force`` (the generalised force
-    -dU/dz at the state, nz) and ``unbalanced`` (its largest entry over the elastic force of a unit strain:
-    ~0 at an equilibrium).  See the module notes.
-    """
-    from .coupled_terms import fluid_kinetic_metric, fluid_potential_static
-    from .rod_statics import _force_jacobian, lumped_mass
 
-    _refuse(model)
-    t, rod = model.tube, model.rod
-    nz = model.nz
-    cfg = t.config(np.concatenate([t.q_init, t.lam_init]))
-    Lam, r = rod.Lam0, rod.r0
-    fp, P, off = _fluid_term(model)
+def _names_and_units(model):
+    """Block name of each step unknown and a typical displacement of it (translations ds, rotations 1, labels
+    L/M, radii R0; multipliers 1): the scales of the force and convergence tests."""
+    t, rod, nz = model.tube, model.rod, model.nz
+    names = np.empty(nz, dtype=object)
+    for name, idx in model.layout.items():
+        names[np.arange(nz)[idx]] = name
+    unit = np.ones(nz)
+    unit[model.rod_z] = np.where(np.flatnonzero(rod.mask.ravel()) % 6 < 3, rod.ds, 1.0)
+    unit[names == "s"] = t.L / t.M
+    unit[names == "R"] = t.R0
+    return names, unit
 
-    def embed(block, start):
-        block = sp.coo_matrix(block)
-        return sp.csr_matrix((block.data, (block.row + start, block.col + start)), shape=(nz, nz))
 
-    # stiffness: the rod's exact element Hessian (minus the derivative of its generalised force), the wall's
-    # terms on the tube's blocks, and the fluid's Hessian mapped from its kernel ordering
-    K = embed(-_force_jacobian(rod, Lam, r), model.rod_z.start)
+def _force_and_stiffness(model, Lam, r, zt, load_factor=1.0, stiffness=True, exact_rod=False):
+    """The generalised force f = -dU/dz (nz) at a configuration (rod frames and positions, tube unknowns zt =
+    (q, lam)), and the stiffness K = d^2U/dz^2 (sparse): the rod's exact element blocks (minus the derivative of
+    its generalised force, rod_statics ``_force_jacobian``; symmetrised unless ``exact_rod``, which keeps the
+    derivative of the Lie gradient that Newton needs away from equilibrium), the wall's terms on the tube's
+    blocks, the fluid's Hessian (:func:`varint.coupled_terms.fluid_potential_static`) mapped from its kernel
+    ordering.  Gravity and the rod's end loads are scaled by ``load_factor``."""
+    from dataclasses import replace
+
+    from .coupled_terms import fluid_potential_static
+    from .rod_statics import _force_jacobian, _potential_gradient
+
+    t, rod, nz = model.tube, model.rod, model.nz
+    cfg = t.config(zt)
+    fp, P, _ = _fluid_term(model)
+    fp = replace(fp, g=load_factor * np.asarray(fp.g, dtype=float))
+    _, gf, Hf = fluid_potential_static(fp, cfg.s, r, Lam, cfg.R, cfg.mu, hessian=stiffness)
+    force = np.zeros(nz)
+    force[model.rod_z] = _potential_gradient(rod, Lam, r, load_factor)[rod.mask]
+    force[model.tube_z] -= t.B.T @ t.gradient(cfg)
+    force -= P.T @ gf
+    if not stiffness:
+        return force, None
+    Kr = -_force_jacobian(rod, Lam, r, load_factor)
+    if not exact_rod:
+        Kr = 0.5 * (Kr + Kr.T)
+    K = _embed(Kr, model.rod_z.start, nz) + P.T @ Hf @ P
     Ht = t.hessian(cfg)
     if Ht.nnz:
-        K = K + embed(t.B.T @ Ht @ t.B, model.tube_z.start)
-    _, _, Hf = fluid_potential_static(fp, cfg.s, r, Lam, cfg.R, cfg.mu)
-    K = K + P.T @ Hf @ P
-    K = (0.5 * (K + K.T)).tocsr()
+        K = K + _embed(t.B.T @ Ht @ t.B, model.tube_z.start, nz)
+    return force, K.tocsr()
 
-    # mass: the rod's lumped metric (weighted by |Gamma_e| under the paper's measure, as the stepper's level
-    # energy), the dynamic wall's a w_j, and the fluid's metric on (rdot, omega, sdot)
+
+def _mass(model, Lam, r, zt):
+    """The kinetic metric of docs/theory.md §10.5 on the step unknowns (zero on the algebraic ones): the rod's
+    lumped metric (weighted by |Gamma_e| under the paper's measure, as the stepper's level energy), a dynamic
+    wall's a w_j, and the fluid's metric on (rdot, omega, sdot) mapped from the kernel ordering."""
+    from .coupled_terms import fluid_kinetic_metric
+    from .rod_statics import lumped_mass
+
+    t, rod, nz = model.tube, model.rod, model.nz
+    cfg = t.config(zt)
+    _, P, off = _fluid_term(model)
     lm = lumped_mass(rod)
     if rod.paper_measure:
         _, Ga = rod.strains(Lam, r)
@@ -115,38 +143,107 @@ def coupled_linearization(model):
         wmu[:-1] += 0.5 * rod.ds * mu_e
         wmu[1:] += 0.5 * rod.ds * mu_e
         lm = lm * (wmu / rod.w)[:, None]
-    M = embed(sp.diags(lm[rod.mask]), model.rod_z.start)
-    tube_mass = np.concatenate([t.mass, np.zeros(t.nlam)])
-    M = M + embed(sp.diags(tube_mass), model.tube_z.start)
+    M = _embed(sp.diags(lm[rod.mask]), model.rod_z.start, nz)
+    M = M + _embed(sp.diags(np.concatenate([t.mass, np.zeros(t.nlam)])), model.tube_z.start, nz)
     Mf, _ = fluid_kinetic_metric(cfg.s, r, t.label_mass_all, t.ds)
     Pk = P[: off["R"]]  # the metric's ordering [rod 6/node | s]: the first rows of the kernel ordering
-    M = (M + Pk.T @ Mf @ Pk).tocsr()
-    M = 0.5 * (M + M.T)
+    M = M + Pk.T @ Mf @ Pk
+    return (0.5 * (M + M.T)).tocsr()
 
-    # the generalised force -dU/dz at the state (rod, wall, fluid): zero at an equilibrium.  Its size against the
-    # elastic force of a unit strain (diag K x a unit displacement) says whether the modes are about a loaded,
-    # unbalanced state (gravity, end loads, a closed tube's pressure thrust against p_ext)
-    from .rod_statics import _potential_gradient
 
-    force = np.zeros(nz)
-    force[model.rod_z] = _potential_gradient(rod, Lam, r)[rod.mask]
-    force[model.tube_z] -= t.B.T @ t.gradient(cfg)
-    force -= P.T @ fluid_potential_static(fp, cfg.s, r, Lam, cfg.R, cfg.mu, hessian=False)[1]
+def initial_configuration(model):
+    """(Lambda, r, zt) of the scene's initial state: the rod's frames and positions, the tube's (q, lam)."""
+    t = model.tube
+    return model.rod.Lam0, model.rod.r0, np.concatenate([t.q_init, t.lam_init])
 
-    names = np.empty(nz, dtype=object)
-    for name, idx in model.layout.items():
-        names[np.arange(nz)[idx]] = name
+
+def coupled_linearization(model, configuration=None):
+    """Mass and stiffness of the coupled tube about a configuration (default: its initial state), in the step
+    unknowns z.
+
+    ``configuration``: (Lambda, r, zt) as :func:`initial_configuration` or :func:`coupled_static` return.
+    Returns a dict: ``M`` and ``K`` (sparse, nz x nz; M zero on the algebraic unknowns), ``inertial`` and
+    ``algebraic`` (indices into z), ``names`` (block name of each z entry), ``force`` (the generalised force
+    -dU/dz at the state, nz) and ``unbalanced`` (its largest entry over the elastic force of a unit strain:
+    ~0 at an equilibrium).  See the module notes.
+    """
+    _refuse(model)
+    t = model.tube
+    Lam, r, zt = configuration if configuration is not None else initial_configuration(model)
+    force, K = _force_and_stiffness(model, Lam, r, zt)
+    M = _mass(model, Lam, r, zt)
+    # the force's size against the elastic force of a unit strain (diag K x a unit displacement) says whether the
+    # modes are about a loaded, unbalanced state (gravity, end loads, a closed tube's pressure thrust against p_ext)
+    names, unit = _names_and_units(model)
     algebraic = model.tube_z.start + np.arange(t.nq, t.nq + t.nlam)
-    inertial = np.setdiff1d(np.arange(nz), algebraic)
-    unit = np.ones(nz)
-    unit[model.rod_z] = np.where(np.flatnonzero(rod.mask.ravel()) % 6 < 3, rod.ds, 1.0)
-    unit[names == "s"] = t.L / t.M
-    unit[names == "R"] = t.R0
+    inertial = np.setdiff1d(np.arange(model.nz), algebraic)
     forced = names != "mu"  # (a multiplier's row is a volume, not a force)
     size = float(np.max(np.abs(K.diagonal()[forced]) * unit[forced]))
     unbalanced = float(np.max(np.abs(force[forced]))) / size if size > 0 else 0.0
-    return {"M": M.tocsr(), "K": K, "inertial": inertial, "algebraic": algebraic, "names": names, "force": force,
+    return {"M": M, "K": K, "inertial": inertial, "algebraic": algebraic, "names": names, "force": force,
             "unbalanced": unbalanced}
+
+
+def coupled_static(model, steps=4, tol=1e-10, max_iter=40):
+    """The static equilibrium of the coupled tube: Newton on the zero of the generalised force in every block at
+    once (rod on SE(3)^(N+1) by Lambda cay(sigma), r + dr; labels; radii; multipliers: K dz = f, K the saddle
+    matrix of :func:`_force_and_stiffness`), with load continuation in gravity and the rod's end loads as
+    varint/rod_statics.py ``static_equilibrium`` (``steps`` increments, doubled until each converges).
+    Converged when every increment is below ``tol`` of its block's typical displacement (multipliers: of the
+    largest |mu| or p_ext).  Returns ((Lambda, r, zt), info); a free tube (no unique equilibrium) and the states
+    :func:`coupled_linearization` refuses are one-line errors.
+    """
+    import warnings
+
+    import scipy.sparse.linalg as spla
+
+    from .lie import cay
+
+    _refuse(model)
+    t, rod = model.tube, model.rod
+    if rod.free:
+        raise SolverError("static equilibrium: with both rod.ends free the coupled tube can move rigidly, so it has "
+                          "no unique static equilibrium; clamp or pin an end")
+    names, unit = _names_and_units(model)
+    mu_idx = names == "mu"
+    mask = rod.mask
+    start = initial_configuration(model)
+    n_steps = steps
+    while True:
+        Lam, r, zt = (x.copy() for x in start)
+        ok, iters = True, 0
+        for k in range(1, n_steps + 1):
+            lf = k / n_steps
+            for _ in range(max_iter):
+                f, K = _force_and_stiffness(model, Lam, r, zt, lf, exact_rod=True)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", spla.MatrixRankWarning)
+                    dz = spla.spsolve(K.tocsc(), f)
+                if not np.all(np.isfinite(dz)):
+                    ok = False
+                    break
+                u = np.zeros(mask.shape)
+                u[mask] = dz[model.rod_z]
+                Lam, r = Lam @ cay(u[:, 3:]), r + u[:, :3]
+                zt = zt + dz[model.tube_z]
+                if t.label_problem(t.config(zt)) is not None:
+                    ok = False
+                    break
+                iters += 1
+                scale = unit.copy()
+                if np.any(mu_idx):
+                    scale[mu_idx] = max(float(np.max(np.abs(zt[t.layout["mu"]]))), t.p_ext, 1.0)
+                if np.max(np.abs(dz) / scale) < tol:
+                    break
+            else:
+                ok = False
+            if not ok:
+                break
+        if ok:
+            return (Lam, r, zt), {"load_steps": n_steps, "iterations": iters}
+        if n_steps >= 256:
+            raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
+        n_steps *= 2
 
 
 def _reduce(lin):
@@ -196,26 +293,27 @@ def _reduce(lin):
     return 0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T), back
 
 
-def coupled_modes(model, count=20, vectors=False):
+def coupled_modes(model, count=20, vectors=False, method="auto"):
     """The ``count`` lowest modes of the coupled tube linearised about its initial state at rest.
 
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` in the order of ``varint.analysis.modes``
     (instabilities first, then frequencies increasing); with ``vectors`` also the mode shapes (nz, count)
-    in the model's step unknowns z (algebraic entries: the condensed multipliers / radii).  Raises
+    in the model's step unknowns z (algebraic entries: the condensed radii and the regular part of the
+    multipliers).  ``method``: "dense" (every mode), "sparse" (the lowest ``count`` by shift-invert Lanczos)
+    or "auto" (sparse above :data:`DENSE_COUPLED_LIMIT` unknowns).  Raises
     :class:`varint.errors.SolverError` (one line) for states it does not linearise about.
     """
-    return modes_of_linearization(model, coupled_linearization(model), count, vectors)
+    return modes_of_linearization(model, coupled_linearization(model), count, vectors, method)
 
 
-def modes_of_linearization(model, lin, count=20, vectors=False):
+def modes_of_linearization(model, lin, count=20, vectors=False, method="auto"):
     """:func:`coupled_modes` of a :func:`coupled_linearization` already built (``varint modes`` also reads
     its ``unbalanced``)."""
     from .analysis import _modes_from_w2
 
+    if method == "sparse" or (method == "auto" and lin["K"].shape[0] > DENSE_COUPLED_LIMIT):
+        return _sparse_modes(lin, count, vectors)
     Kr, Mr, back = _reduce(lin)
-    if Kr.shape[0] > DENSE_COUPLED_LIMIT:
-        raise SolverError(f"modes: the coupled tube has {Kr.shape[0]} moving unknowns; the dense eigen-solver is "
-                          f"limited to {DENSE_COUPLED_LIMIT} (use fewer nodes or parcels)")
     if Kr.shape[0] == 0:
         return ([], np.zeros((model.nz, 0))) if vectors else []
     w2, X = sla.eigh(Kr, Mr)
@@ -226,7 +324,34 @@ def modes_of_linearization(model, lin, count=20, vectors=False):
     return res
 
 
-def frequencies(res):
-    """The frequencies of a modes list (growing modes give 0), as an array: a convenience for tests and scripts."""
-    return np.array([m["frequency"] for m in res])
+def _sparse_modes(lin, count, vectors):
+    """The lowest ``count`` modes by shift-invert Lanczos on the whole pencil (K, M) in z.
 
+    M is only semi-definite (zero on the algebraic unknowns), which ARPACK's shift-invert mode accepts: the
+    operator (K - sigma M)^-1 M maps the algebraic directions and the constrained ones to the eigenvalue 0 of
+    an infinite w^2, never near the shift, so what it returns are the finite modes of the condensed problem;
+    K - sigma M is the regular saddle matrix of the step (sparse LU).  The shift sits just below zero, as in
+    varint.analysis.sparse_modes_of (1e-8, then 1e-14, of a Gershgorin bound on the largest w^2 from the
+    inertial rows); the classification threshold is 1e-18 of that bound on w^2.  Mode shapes: the z-vectors
+    themselves (multipliers included).
+    """
+    import scipy.sparse.linalg as spla
+
+    from .analysis import SPARSE_SHIFTS, _arpack, _modes_from_w2
+
+    K, M = lin["K"].tocsc(), lin["M"].tocsc()
+    q = lin["inertial"]
+    rows = np.asarray(abs(K[q]).sum(axis=1)).ravel()
+    big2 = float(np.max(rows / M.diagonal()[q]))
+    k = min(count, len(q) - 2)
+    for i, shift in enumerate(SPARSE_SHIFTS):
+        try:
+            w2, X = _arpack(spla.eigsh, K, k=k, M=M, sigma=-shift * big2, which="LM", v0=np.ones(K.shape[0]),
+                            maxiter=300 if i < len(SPARSE_SHIFTS) - 1 else None)
+            break
+        except Exception:  # noqa: BLE001 (ARPACK's failure as a VarintError; the last shift re-raises)
+            if i == len(SPARSE_SHIFTS) - 1:
+                raise
+    order = np.argsort(w2)
+    res = _modes_from_w2(w2[order], 1e-18 * big2)
+    return (res, X[:, order]) if vectors else res

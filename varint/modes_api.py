@@ -46,15 +46,13 @@ def scene_modes(scene, count=20, about="initial", source=None):
     d = {"about": about}
     if model.coupled:
         # docs/theory.md §10.10: the coupled tube's kinetic metric and potential Hessian about its initial state
-        from .coupled_modes import coupled_linearization, modes_of_linearization
+        from .coupled_modes import coupled_linearization, coupled_static, modes_of_linearization
 
-        if about == "static":
-            raise VarintError(f"{source}: --about static is not available for the coupled tube ([rod] with [fluid]) in "
-                              "this version (no coupled statics yet); use --about initial")
-        lin = coupled_linearization(model)
+        configuration = coupled_static(model)[0] if about == "static" else None
+        lin = coupled_linearization(model, configuration)
         d["modes"] = modes_of_linearization(model, lin, count)
         loads = _loads(model.rod)
-        if lin["unbalanced"] > 1e-9:
+        if about == "initial" and lin["unbalanced"] > 1e-9:
             why = ", ".join(loads) if loads else "e.g. the fluid's pressure against environment.external_pressure"
             d["note"] = (f"{source} is not in equilibrium in its initial state ({why}; unbalanced force "
                          f"{lin['unbalanced']:.2g} of a unit strain's): these modes are about the initial state, "
