@@ -596,3 +596,113 @@ def test_without_the_section_the_wall_tube_has_no_force():
     assert np.max(np.abs(sim.scheme.residual(q0, p0, z))) < 1e-9 * np.max(np.abs(p0) + 1e-30) + 1e-12
     assert np.array_equal(sim.scheme.momentum_plus(q0, z), sim.state.p)
     assert sim.state.data is None and np.array_equal(model.tube.S, S0)
+
+
+# -- Christensen's limiter (varint.shock_capturing.limited) ----------------------------------------------------
+
+from varint.shock_capturing import _limiter, limited  # noqa: E402
+
+
+def _psi_reference(du, periodic):
+    M = len(du)
+    out = np.zeros(M)
+    for k in range(M):
+        if du[k] >= 0:
+            continue
+        L = du[(k - 1) % M] if (periodic or k > 0) else None
+        R = du[(k + 1) % M] if (periodic or k < M - 1) else None
+        L = R if L is None else L
+        R = L if R is None else R
+        rL, rR = L / du[k], R / du[k]
+        out[k] = max(0.0, min(1.0, 0.5 * (rL + rR), 2 * rL, 2 * rR))
+    return out
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_limiter_formula_and_derivatives(periodic):
+    rng = np.random.default_rng(11)
+    du = rng.standard_normal(12) - 0.5
+    psi, dm, d0, dp = (np.empty(12) for _ in range(4))
+    _limiter(du, periodic, psi, dm, d0, dp)
+    assert np.allclose(psi, _psi_reference(du, periodic), rtol=0, atol=1e-15)
+    assert np.all(psi[du >= 0] == 0) and np.all((psi >= 0) & (psi <= 1))
+    e = 1e-7
+    for j in range(12):
+        a, b = du.copy(), du.copy()
+        a[j] += e
+        b[j] -= e
+        fd = (_psi_reference(a, periodic) - _psi_reference(b, periodic)) / (2 * e)
+        M = 12
+        ana = np.zeros(M)
+        for k in range(M):
+            if k == j:
+                ana[k] += d0[k]
+            if (k - 1) % M == j and (periodic or k > 0):
+                ana[k] += dm[k]
+            if (k + 1) % M == j and (periodic or k < M - 1):
+                ana[k] += dp[k]
+        assert np.allclose(ana, fd, atol=1e-6), j
+    # a smooth (linear) compression is not viscous; a lone jump keeps its full Q
+    lin = -np.linspace(1.0, 2.0, 8)
+    psi = np.empty(8)
+    _limiter(lin, False, psi, np.empty(8), np.empty(8), np.empty(8))
+    assert np.allclose(psi[1:-1], 1.0) and np.all(psi > 0.9)
+    lone = np.full(8, 1e-3)
+    lone[4] = -1.0
+    Q, dQ = np.where(lone < 0, 1.0, 0.0), np.zeros(8)  # Q acts in compression only
+    Ql = limited(Q, dQ, np.ones(8), 1 + lone, 1.0, 1.0, False)[0]
+    assert Ql[4] == 1.0
+    flat = lone.copy()
+    flat[3:6] = -1.0  # a uniform compression over three parcels: its edges keep Q, its middle loses it
+    Q = np.where(flat < 0, 1.0, 0.0)
+    assert np.array_equal(limited(Q, dQ, np.ones(8), 1 + flat, 1.0, 1.0, False)[0][3:6], [1.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("case", ["rigid-closed", "rigid-periodic", "linear-closed", "tube-law-periodic"])
+def test_limited_force_jacobian_against_differences(case):
+    if case.startswith("rigid"):
+        model, sim, st, z, p0 = _random_step(M=12, periodic=case.endswith("periodic"), seed=2)
+    else:
+        law, ends = case.rsplit("-", 1)
+        model = _wall_model(law, ends, M=9)
+        sim = Simulation(model)
+        st = sim.state
+        t = model.tube
+        rng = np.random.default_rng(1)
+        z = st.q.copy()
+        z[t.layout["s"]] += 0.3 * t.ds * rng.standard_normal(t.layout["s"].stop - t.layout["s"].start)
+        z[t.layout["R"]] += 0.002 * rng.standard_normal(t.nR)
+    f = model.forces[0]
+    f.limiter = True
+    pt = sim.scheme.point(st.q, z)
+    Q = f.pressures(pt)[2]
+    assert np.sum(Q > 0) >= 4
+
+    def force(z):
+        d = Derivatives(model)
+        f.add(sim.scheme.point(st.q, z), d, 0)
+        return d.tube_q
+
+    J = f.jacobian(pt).toarray()
+    fd = np.zeros_like(J)
+    for i in range(len(z)):
+        e = np.zeros_like(z)
+        e[i] = 1e-8
+        fd[:, i] = (force(z + e) - force(z - e)) / 2e-8
+    assert np.abs(J - fd).max() < 1e-7 * np.abs(J).max()
+
+
+def test_limited_sod_keeps_energy_entropy_and_accuracy():
+    """Sod with the limiter: energy and entropy as without it, the density error within 10 % of the unlimited one
+    (measured 6.09e-3 against 6.42e-3 at 100 parcels)."""
+    d = tube_scene(100)
+    sim = Simulation(build(d))
+    sim.model.forces[0].limiter = True
+    check = _energy_and_entropy_check(1e-10)
+    check.E0 = sim.monitors()["energy"]
+    for _ in range(int(round(d["time"]["end"] / d["time"]["step"]))):
+        before = sim.state.copy()
+        sim.step()
+        check(sim, before)
+    s, rho, _, _ = fields(sim)
+    assert density_l1(s, rho, RiemannSolution(*SOD, GAMMA), 0.2) < 1.1 * 6.42e-3

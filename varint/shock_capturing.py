@@ -113,6 +113,85 @@ def _heated_entropy(S, V1, K, W, gamma, cv, out):
         out[k] = S[k] + cv * math.log1p(W[k] / E)
 
 
+@njit(cache=True)
+def _limiter(du, periodic, psi, dm, d0, dp):
+    """Christensen's monotonic limiter psi_k = max(0, min(1, (r_L + r_R)/2, 2 r_L, 2 r_R)), r_L = du_{k-1}/du_k,
+    r_R = du_{k+1}/du_k, and its derivatives in du_{k-1}, du_k, du_{k+1}.  Only parcels in compression (du_k < 0)
+    are limited; a closed end's missing neighbour takes the other side's ratio."""
+    M = du.shape[0]
+    for k in range(M):
+        psi[k] = 0.0
+        dm[k] = 0.0
+        d0[k] = 0.0
+        dp[k] = 0.0
+        u = du[k]
+        if u >= 0.0:
+            continue
+        hasL = periodic or k > 0
+        hasR = periodic or k < M - 1
+        if not hasL and not hasR:
+            continue
+        uL = du[(k - 1) % M] if hasL else 0.0
+        uR = du[(k + 1) % M] if hasR else 0.0
+        rL = uL / u if hasL else uR / u
+        rR = uR / u if hasR else uL / u
+        # d r / d(du_left), d(du_k), d(du_right) for each ratio (a missing side mirrors the other)
+        aL = (1.0 / u, -rL / u, 0.0) if hasL else (0.0, -rL / u, 1.0 / u)
+        aR = (0.0, -rR / u, 1.0 / u) if hasR else (1.0 / u, -rR / u, 0.0)
+        # candidates of the min: 1, mean, 2 rL, 2 rR (the first smallest wins ties: a.e. derivative)
+        best = 1.0
+        g = (0.0, 0.0, 0.0)
+        mean = 0.5 * (rL + rR)
+        if mean < best:
+            best = mean
+            g = (0.5 * (aL[0] + aR[0]), 0.5 * (aL[1] + aR[1]), 0.5 * (aL[2] + aR[2]))
+        if 2.0 * rL < best:
+            best = 2.0 * rL
+            g = (2.0 * aL[0], 2.0 * aL[1], 2.0 * aL[2])
+        if 2.0 * rR < best:
+            best = 2.0 * rR
+            g = (2.0 * aR[0], 2.0 * aR[1], 2.0 * aR[2])
+        if best <= 0.0:
+            continue
+        psi[k] = best
+        dm[k], d0[k], dp[k] = g
+
+
+def limited(Q, dQ, V0, V1, A, h, periodic):
+    """Q (1 - psi) with Christensen's limiter on du = (V1 - V0)/(A h) (Caramana, Shashkov & Whalen, J. Comput.
+    Phys. 144, 70 (1998), §4): (Q', dQ'/dV1_k, dQ'_k/dV1_{k-1}, dQ'_k/dV1_{k+1}).  In a smooth compression the
+    neighbours' du are alike, psi -> 1 and Q' -> 0; at a shock the jump stands alone, psi -> 0."""
+    A = np.broadcast_to(np.asarray(A, dtype=np.float64), np.shape(V0))
+    du = np.ascontiguousarray((V1 - V0) / (A * h))
+    M = len(du)
+    psi, dm, d0, dp = (np.empty(M) for _ in range(4))
+    _limiter(du, bool(periodic), psi, dm, d0, dp)
+    ddu = 1.0 / (A * h)  # d du_j / d V1_j
+    left, right = np.roll(ddu, 1), np.roll(ddu, -1)  # of parcels k-1 and k+1 (a closed end's is not used:
+    # _limiter gives no derivative towards a missing neighbour)
+    Qn = Q * (1.0 - psi)
+    diag = dQ * (1.0 - psi) - Q * d0 * ddu
+    lower = -Q * dm * left  # d Q'_k / d V1_{k-1}
+    upper = -Q * dp * right  # d Q'_k / d V1_{k+1}
+    return Qn, diag, lower, upper
+
+
+def tridiagonal(diag, lower, upper, periodic):
+    """The (M, M) sparse matrix with ``diag``, ``lower[k]`` at (k, k-1) and ``upper[k]`` at (k, k+1) (wrapping when periodic)."""
+    M = len(diag)
+    k = np.arange(M)
+    rows, cols, vals = [k], [k], [diag]
+    if periodic:
+        rows += [k, k]
+        cols += [(k - 1) % M, (k + 1) % M]
+        vals += [lower, upper]
+    else:
+        rows += [k[1:], k[:-1]]
+        cols += [k[:-1], k[1:]]
+        vals += [lower[1:], upper[:-1]]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(M, M))
+
+
 def mean_value_pressure(V0, V1, K, gamma):
     """(Ptilde, dPtilde/dV1) per parcel for an ideal gas p = K V^-gamma (K = exp(S/c_v) m^gamma)."""
     V0, V1, K = (np.ascontiguousarray(a, dtype=np.float64) for a in (V0, V1, K))
@@ -154,6 +233,8 @@ class ShockCapturing(Force):
         self.tube = tube
         self.gamma, self.cv = eos.gamma, eos.cv
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
+        #: Christensen's limiter on Q (:func:`limited`): off unless the section asks for it (key ``limiter``)
+        self.limiter = bool(keys.limiter)
         self.A = math.pi * float(tube.R0) ** 2
         M = tube.M
         # The labels are s = c0_s + B_s z with B_s a 0/1 selection (interior labels; a periodic tube's s_M
@@ -202,6 +283,10 @@ class ShockCapturing(Force):
         g = self.gamma
         P, dP = mean_value_pressure(V0, V1, K, g)
         Q, dQ = viscous_pressure(V0, V1, self.tube.m, K, g, self.A, pt.h, self.cQ, self.cL)
+        self._off = None
+        if self.limiter:
+            Q, dQ, lo, up = limited(Q, dQ, V0, V1, self.A, pt.h, self.tube.periodic)
+            self._off = (lo, up)  # dQ_k/dV1_{k-1}, dQ_k/dV1_{k+1}: read by jacobian()
         Vb = 0.5 * (V0 + V1)
         pb = K * Vb ** (-g)
         dpb = -0.5 * g * pb / Vb
@@ -218,7 +303,21 @@ class ShockCapturing(Force):
         """d f^- / dz = (h/2) G^T diag(dX/dV1) G (the tube is the model's only part: no offset)."""
         dX = self.pressures(pt)[1]
         vals = (0.5 * pt.h * self.A * self.A) * self._jsign * dX[self._jpar]
-        return sp.csc_matrix((vals, (self._jrows, self._jcols)), shape=(self.nz, self.nz))
+        J = sp.csc_matrix((vals, (self._jrows, self._jcols)), shape=(self.nz, self.nz))
+        if self._off is not None:  # the limiter couples each Q_k to its neighbours' compression
+            T = tridiagonal(np.zeros(len(dX)), *self._off, self.tube.periodic)
+            G = self._G()
+            J = J + sp.csc_matrix(0.5 * pt.h * (G.T @ T @ G))
+        return J
+
+    def _G(self):
+        """G = dV/dz = A D B_s as a sparse (M, nz) matrix (built once, for the limiter's Jacobian)."""
+        if getattr(self, "_Gmat", None) is None:
+            t = self.tube
+            M = t.M
+            D = sp.diags([-np.ones(M), np.ones(M)], [0, 1], shape=(M, M + 1))
+            self._Gmat = (self.A * (D @ t.B[: M + 1, :])).tocsr()
+        return self._Gmat
 
     def work(self, pt):
         """Viscous work W_k = -Q_k (V_k^{n+1} - V_k^n) >= 0 done on each parcel over the step."""
@@ -490,6 +589,7 @@ class SwellingShockCapturing(ShockCapturing):
         self.tube = tube
         self.gamma, self.cv = eos.gamma, eos.cv
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
+        self.limiter = bool(keys.limiter)
         if tube.nlam:
             raise ValueError("shock capturing: the swelling tube needs every unknown to carry inertia (a dynamic wall)")
         self.nz = tube.nz
@@ -522,6 +622,10 @@ class SwellingShockCapturing(ShockCapturing):
         P, dP = mean_value_pressure(V0, V1, K, g)
         A0 = V0 / np.diff(c0.s)  # the parcels' mean cross-section at level n
         Q, dQ = viscous_pressure(V0, V1, self.tube.m, K, g, A0, pt.h, self.cQ, self.cL)
+        self._off = None
+        if self.limiter:
+            Q, dQ, lo, up = limited(Q, dQ, V0, V1, A0, pt.h, self.tube.periodic)
+            self._off = (lo, up)
         return P + Q, dP + dQ, Q, V0, V1
 
     def _path(self, pt, tau):
@@ -567,7 +671,8 @@ class SwellingShockCapturing(ShockCapturing):
         jr, jc, jv = parcel_derivatives(c1.s, c1.R, t.ds, t.periodic, zero, zero, True, True)[3]
         n = self.nlab + t.nR
         J1 = sp.csr_matrix((jv, (jr, jc)), shape=(M, n))
-        A = G.T @ sp.diags(dX) @ J1 + HX
+        D = sp.diags(dX) if self._off is None else tridiagonal(dX, *self._off, t.periodic)
+        A = G.T @ D @ J1 + HX
         cm = self._path(pt, 0.5)
         r, c, v = self.internal.hessian(cm, {}, t.index)
         A = A + sp.csr_matrix((0.5 * v, (r, c)), shape=(n, n))
