@@ -45,7 +45,7 @@ BAD = [
     ("length-string", [("tube.length", "one")], "tube.length: must be a number"),
     ("unknown-tube-key", [("tube.lenght", 1.0)], "tube.lenght: unknown key (did you mean 'length'?)"),
     ("unknown-section", [("fluids", {"a": 1})], "fluids: unknown key (did you mean 'fluid'?)"),
-    ("rod-with-periodic-fluid", [("fluid.ends", {"s0": "periodic", "sL": "periodic"}), ("rod", {"mass_per_length": 1.0, "rotary_inertia": 1e-4, "bending_stiffness": 1.0, "torsional_stiffness": 1.0, "axial_stiffness": 1e3, "shear_stiffness": 1e3})], "fluid.ends: periodic ends with a [rod] (a ring) are not available"),
+    ("rod-with-periodic-fluid", [("fluid.ends", {"s0": "periodic", "sL": "periodic"}), ("rod", {"mass_per_length": 1.0, "rotary_inertia": 1e-4, "bending_stiffness": 1.0, "torsional_stiffness": 1.0, "axial_stiffness": 1e3, "shear_stiffness": 1e3})], "fluid.ends: a [fluid] on a [rod] is periodic exactly when the rod is"),
     ("rod-with-wall-only", [("fluid", _DEL), ("rod", {"mass_per_length": 1.0, "rotary_inertia": 1e-4, "bending_stiffness": 1.0, "torsional_stiffness": 1.0, "axial_stiffness": 1e3, "shear_stiffness": 1e3})], "wall: a [wall] on a [rod] needs a [fluid]"),
     ("rod-missing-density", [("wall", _DEL), ("fluid", _DEL), ("rod", {"youngs_modulus": 1e6, "thickness": 0.01})], "rod.density: missing"),
     ("rod-mixed-forms", [("wall", _DEL), ("fluid", _DEL), ("rod", {"youngs_modulus": 1e6, "thickness": 0.01, "density": 1e3, "bending_stiffness": 1.0})], "rod.youngs_modulus: give either the material form or the stiffness form"),

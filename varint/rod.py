@@ -146,10 +146,16 @@ class RodPart:
                 mask[node, :3] = False
             if kind == "clamped":
                 mask[node, 3:] = False
+        #: periodic ends (docs/theory.md §9b): node N is node 0's image, r_N = r_0 + d (d = L E_1, the period),
+        #: Lambda_N = Lambda_0; it holds no unknowns of its own, its rows fold into node 0's
+        self.periodic = rod.ends.s0 == "periodic"
+        self.period = np.array([self.L, 0.0, 0.0])
+        if self.periodic:
+            mask[self.N, :] = False
         self.mask = mask
-        #: both ends free: the rod can translate and turn as a whole (the mask cannot say it for the
+        #: both ends free (or periodic): the rod can translate and turn as a whole (the mask cannot say it for the
         #: planar model, whose out-of-plane directions are masked everywhere)
-        self.free = rod.ends.s0 == "free" and rod.ends.sL == "free"
+        self.free = (rod.ends.s0 == "free" and rod.ends.sL == "free") or self.periodic
         self.nz = int(mask.sum())
         self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
         #: the inextensible, unshearable rod (docs/theory.md §9a, varint.rod_constraint): Gamma = chi imposed by
@@ -169,6 +175,8 @@ class RodPart:
                                  "'inextensible_unshearable' in this version (its statics need the constraint)")
         self.w = np.full(self.N + 1, self.ds)
         self.w[0] = self.w[-1] = 0.5 * self.ds
+        if self.periodic:  # node 0 carries both halves of its lumped mass, its image none
+            self.w[0], self.w[-1] = self.ds, 0.0
         #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
         self.node_mass = self.section.rhoA * self.w
         self.node_inertia = self.section.inertia[None, :] * self.w[:, None]
@@ -282,6 +290,32 @@ class RodPart:
                   np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, *consts[1:], self.paper_measure, elem, node)
         return elem, node
 
+    def node_index(self):
+        """(N+1, 6) index of each node's (dr, sigma) in the rod's unknowns, -1 where held; a periodic rod's
+        image node N takes node 0's (its rows and columns fold into node 0's)."""
+        idx = np.full((self.N + 1, 6), -1)
+        idx[self.mask] = np.arange(self.nz)
+        if self.periodic:
+            idx[self.N] = idx[0]
+        return idx
+
+    @property
+    def column_mask(self):
+        """The directions whose columns the element kernels compute: the mask, and a periodic rod's image node
+        as node 0 (its columns fold into node 0's)."""
+        if not self.periodic:
+            return self.mask
+        m = self.mask.copy()
+        m[self.N] = m[0]
+        return m
+
+    def fold(self, D):
+        """A periodic rod's (N+1, 6) derivative with the image node's rows added into node 0's (in place)."""
+        if self.periodic:
+            D[0] += D[self.N]
+            D[self.N] = 0.0
+        return D
+
     def level_energy(self, Lam, r, p, Pi, origin=None):
         """Energy H(q_n, pi_n) = kinetic from the discrete momenta + potential at the level (the monitor).
 
@@ -295,6 +329,9 @@ class RodPart:
         wmu = np.zeros(self.N + 1)  # nodal weights of the (possibly |Gamma|-weighted) lumped mass
         wmu[:-1] += 0.5 * ds * mu
         wmu[1:] += 0.5 * ds * mu
+        if self.periodic:  # the image node's half belongs to node 0 (its momenta are folded there)
+            wmu[0] += wmu[-1]
+            wmu[-1] = np.inf
         kin = float(np.sum(np.sum(p * p, 1) / (sec.rhoA * wmu)) * 0.5
                     + np.sum(np.sum(Pi * Pi / sec.inertia, 1) / wmu) * 0.5)
         bend = float(np.sum(ds * mu * 0.5 * np.sum(sec.J * Om * Om, axis=-1)))
@@ -371,8 +408,7 @@ class RodPart:
         """Rows, columns (on the mask) and kept entries of the element blocks (N, 12, 12), built once."""
         if getattr(self, "_pattern", None) is None:
             N = self.N
-            idx = np.full((N + 1) * 6, -1)
-            idx[self.mask.ravel()] = np.arange(self.nz)
+            idx = self.node_index().ravel()
             e = np.arange(N)[:, None]
             loc = np.arange(12)[None, :]
             glob = (e + loc // 6) * 6 + loc % 6  # (N, 12) full index of each block row/column
@@ -397,7 +433,7 @@ class RodPart:
         f8 = np.float64
         _k_step_blocks(float(h), self.ds, rhoA, inertia, J, K, g, self.paper_measure,
                        np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
-                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), self.mask, EPS_CS, blocks)
+                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), self.column_mask, EPS_CS, blocks)
         return self.assemble(blocks)
 
     def potential_hessian(self, Lam, r, load_factor=1.0):
@@ -406,7 +442,7 @@ class RodPart:
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
         blocks = np.empty((self.N, 12, 12))
         _k_static_blocks(self.ds, rhoA, inertia, J, K, g, self.paper_measure, np.ascontiguousarray(Lam, dtype=np.float64),
-                         np.ascontiguousarray(r, dtype=np.float64), self.mask, EPS_CS, blocks)
+                         np.ascontiguousarray(r, dtype=np.float64), self.column_mask, EPS_CS, blocks)
         for f in self.forces:  # the tip torque's generalised force turns with the tip frame
             blocks[-1, 9:, 9:] += load_factor * f.stiffness_block(Lam)
         return self.assemble(blocks)
@@ -456,7 +492,10 @@ class RodPart:
             decl.append(Declaration("tip_force", {"linear_momentum": None, "angular_momentum": None}))
         decl += [f.declaration for f in self.forces]
         ends = (self.scene.rod.ends.s0, self.scene.rod.ends.sL)
-        if ends == ("pinned", "pinned") and self.dim == 3:
+        if self.periodic:
+            # translations keep the period d = L E_1; of the rotations only those about d do
+            decl.append(Declaration("ends", {"angular_momentum": "angular_momentum_along_the_period"}))
+        elif ends == ("pinned", "pinned") and self.dim == 3:
             # bearings at both ends: turning about the line through them keeps both pins in place
             decl.append(Declaration("ends", {"linear_momentum": None,
                                              "angular_momentum": "angular_momentum_about_the_bearing_axis"}))

@@ -134,8 +134,8 @@ SCHEMA = MappingProxyType({
         Key("shear_stiffness", "float", None, "N", "stiffness form: k G A", low=0.0, low_open=True),
     ),
     "rod.ends": (
-        Key("s0", "str", "clamped", "", "support at s = 0", choices=("clamped", "pinned", "free")),
-        Key("sL", "str", "free", "", "support at s = L", choices=("clamped", "pinned", "free")),
+        Key("s0", "str", "clamped", "", "support at s = 0 (periodic: at both ends, a straight periodic tube of period L along x)", choices=("clamped", "pinned", "free", "periodic")),
+        Key("sL", "str", "free", "", "support at s = L", choices=("clamped", "pinned", "free", "periodic")),
     ),
     "rod.initial": (
         Key("velocity", "vec3", (0.0, 0.0, 0.0), "m/s", "rigid translation velocity"),
@@ -523,8 +523,26 @@ class _Validator:
 
     def rod_checks(self, sc):
         rod = sc.rod
-        if sc.fluid is not None and sc.fluid.ends.s0 == "periodic":
-            self.bad("fluid.ends", "periodic ends with a [rod] (a ring) are not available in this version; use 'closed'")
+        periodic = rod.ends.s0 == "periodic" or rod.ends.sL == "periodic"
+        if periodic:
+            ini, load = rod.initial, rod.load
+            if rod.ends.s0 != rod.ends.sL:
+                self.bad("rod.ends", "periodic must be set at both ends (s0 and sL)")
+            elif any(ini.curvature):
+                self.bad("rod.initial.curvature", "a periodic rod starts straight along x (its period is L E_1)")
+            elif ini.angular_velocity[1] != 0.0 or ini.angular_velocity[2] != 0.0:
+                self.bad("rod.initial.angular_velocity", "a periodic rod can only spin about its axis x (another spin "
+                         "would move its ends apart)")
+            elif any(load.force) or any(load.torque):
+                self.bad("rod.load", "a periodic rod has no tip to load")
+            elif rod.constraint != "none":
+                self.bad("rod.constraint", "a periodic inextensible rod has an indeterminate tension (its length is "
+                         "the period): use constraint = 'none'")
+            elif ini.shape == "steady_rotation":
+                self.bad("rod.initial.shape", "'steady_rotation' is not available for a periodic rod")
+        if sc.fluid is not None and (sc.fluid.ends.s0 == "periodic") != periodic:
+            self.bad("fluid.ends", "a [fluid] on a [rod] is periodic exactly when the rod is (rod.ends and fluid.ends "
+                     "both 'periodic', or neither)")
         if sc.wall is not None and sc.fluid is None:
             self.bad("wall", "a [wall] on a [rod] needs a [fluid] in this version (without one the wall would couple to "
                      "the rod only through p_ext on the tube's volume, which is not implemented)")

@@ -200,8 +200,8 @@ class RodConstraint:
         self.model, self.rod = model, model.rod
         rod = self.rod
         n1 = rod.N + 1
-        idx = np.full((n1, 6), -1)
-        idx[rod.mask] = model.rod_z.start + np.arange(rod.nz)
+        idx = rod.node_index()
+        idx[idx >= 0] += model.rod_z.start
         e = np.arange(rod.N)[:, None]
         loc = np.arange(12)[None, :]
         self._elem_idx = idx[(e + loc // 6), loc % 6]  # (N, 12) step-unknown index of each element entry, -1 off the mask
@@ -234,7 +234,7 @@ class RodConstraint:
 
         rod = self.rod
         blocks, lam_blocks, row_blocks = constraint_blocks(pt.h, rod.ds, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, pt.rod_lam,
-                                                           rod.ncomp, rod.mask)
+                                                           rod.ncomp, rod.column_mask)
         E, L = self._elem_idx, self._lam_idx
         rows = [np.broadcast_to(E[:, :, None], blocks.shape), np.broadcast_to(E[:, :, None], lam_blocks.shape),
                 np.broadcast_to(L[:, :, None], row_blocks.shape)]

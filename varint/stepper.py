@@ -68,6 +68,8 @@ class Step:
             Lam_n, r_n, _ = unpack_level(q0[m.rod_q], rod.N)
             u = np.zeros((rod.N + 1, 6))
             u[rod.mask] = z[m.rod_z]
+            if rod.periodic:
+                u[rod.N] = u[0]  # the image node moves with node 0
             pt.Lam_n, pt.r_n = Lam_n, r_n
             pt.r_1 = r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3])
             pt.xi = u[:, 3:]
@@ -110,6 +112,9 @@ class Step:
             _, _, origin = unpack_level(q0[m.rod_q], m.rod.N)
             Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
             r_1 = pt.r_1
+            if m.rod.periodic:  # the image node is node 0 shifted by the period, exactly
+                Lam_1[-1] = Lam_1[0]
+                r_1[-1] = r_1[0] + m.rod.period
             if floating_origin:
                 shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
                 r_1, origin = r_1 - shift, origin + shift
@@ -144,7 +149,7 @@ class Step:
             pi_n = p0[m.rod_p].reshape(2, rod.N + 1, 3).transpose(1, 0, 2).reshape(rod.N + 1, 6)
             R = pi_n + d.rod
             R[:, :3] = np.einsum("nji,nj->ni", pt.Lam_n, R[:, :3])
-            parts.append(R[rod.mask])
+            parts.append(rod.fold(R)[rod.mask])
             if rod.constrained:
                 parts.append(d.rod_lam[:, :rod.ncomp].ravel())
         return np.concatenate(parts) if parts else np.empty(0)
@@ -173,7 +178,8 @@ class Step:
         if m.tube is not None:
             parts.append(d.tube_q)
         if m.rod is not None:
-            parts += [d.rod[:, :3].ravel(), d.rod[:, 3:].ravel()]
+            D2 = m.rod.fold(d.rod)  # a periodic rod's image node holds no momentum of its own
+            parts += [D2[:, :3].ravel(), D2[:, 3:].ravel()]
         return np.concatenate(parts) if parts else np.empty(0)
 
     def step_energies(self, q0, z):
