@@ -53,7 +53,7 @@ BAD = [
     ("rod-planar-out-of-plane", [("wall", _DEL), ("fluid", _DEL), ("rod", {"dimension": 2, "youngs_modulus": 1e6, "thickness": 0.01, "density": 1e3, "load": {"force": [0.0, 0.0, 1.0]}})], "rod.load.force: a planar rod"),
     ("rod-dimension-4", [("wall", _DEL), ("fluid", _DEL), ("rod", {"dimension": 4, "youngs_modulus": 1e6, "thickness": 0.01, "density": 1e3})], "rod.dimension: must be <= 3"),
     ("rod-unknown-initial-key", [("wall", _DEL), ("fluid", _DEL), ("rod", {"youngs_modulus": 1e6, "thickness": 0.01, "density": 1e3, "initial": {"spin": [0.0, 0.0, 1.0]}})], "rod.initial.spin: unknown key"),
-    ("shock-with-wall", [("shock_capturing", {})], "shock_capturing: not available with a [wall]"),
+    ("shock-with-quasistatic-wall", [("shock_capturing", {}), ("wall.model", "quasistatic")], "shock_capturing: needs wall.model = 'dynamic'"),
     ("unknown-fluid-model", [("fluid.model", "ideal_gas")], "fluid.model: unknown value 'ideal_gas'"),
     ("too-many-parcels", [("fluid.parcels", 3_000_000)], "fluid.parcels: must be <= 2000000, got 3000000"),
     ("gamma-below-one", [("fluid.gamma", 0.9)], "fluid.gamma: must be >= 1"),
