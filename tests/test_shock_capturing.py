@@ -522,8 +522,9 @@ def test_traveling_shock_keeps_its_speed_and_profile():
     """Started on the paper's traveling profile (c = 447 m/s) with 400 parcels (ds = R0/10): over the run's second
     half (0.6 to 1.2 ms, 5.4 R0 of travel; 10.7 R0 in all) the captured shock moves at 447 m/s within 0.5 %
     (measured -0.31 %; -0.18, -0.09 % at 800, 1600 parcels, scripts/traveling_shock_capture.py), and the
-    pressure, density, velocity and radius 0.1-0.3 m behind it match the wave's profile there within 0.5 % of the
-    far state behind.  Energy is kept to round-off."""
+    pressure, density, velocity and radius 0.2-0.3 m behind it match the wave's profile there within 0.5 % of the
+    far state behind (measured at most 0.33 %; 0.45 % at 0.1 m, 0.23 % there at 800 parcels).  Energy is kept to
+    round-off."""
     import sys
     from pathlib import Path
 
@@ -535,7 +536,7 @@ def test_traveling_shock_keeps_its_speed_and_profile():
     assert r["energy_error"] < 1e-12 and r["entropy_ok"]
     w = r["wave"]
     far = {"p": w.p_plus, "rho": w.rho_plus, "u": w.u_plus, "R": w.R_plus}
-    behind = np.array([o <= -0.1 for o in (-0.3, -0.2, -0.1, -0.05, 0.1, 0.2)])
+    behind = np.array([o <= -0.2 for o in (-0.3, -0.2, -0.1, -0.05, 0.1, 0.2)])
     for name, (got, want) in r["compare"].items():
         assert np.all(np.abs(got - want)[behind] < 5e-3 * far[name]), (name, got, want)
 

@@ -166,8 +166,9 @@ class Model:
             legendre = self.initial_legendre()
             p[self.rod_p.start:self.rod_p.start + 3 * (self.N + 1)] += legendre["rod_p"].ravel()
             sl = self.tube.layout["s"]
-            p[self.tube_p][sl] = legendre["label_p"][1:-1]
-            v[self.tube_p][sl] = legendre["sdot"][1:-1]
+            free = self.free_labels
+            p[self.tube_p][sl] = legendre["label_p"][free]
+            v[self.tube_p][sl] = legendre["sdot"][free]
         return q, p, lam, v
 
     def initial_legendre(self):
@@ -183,8 +184,10 @@ class Model:
         t, rod = self.tube, self.rod
         cfg = t.config(np.concatenate([t.q_init, t.lam_init]))
         u = np.zeros(t.M + 1)
-        u[1:-1] = t.v_init[t.layout["s"]]  # the closed ends' labels do not move along the tube
-        nodes, Nw, dNw, X, dX, _ = centreline_and_weights(cfg.s, rod.r0, t.ds)
+        u[self.free_labels] = t.v_init[t.layout["s"]]  # the closed ends' labels do not move along the tube
+        if t.periodic:
+            u[-1] = u[0]
+        nodes, Nw, dNw, X, dX, _ = self.centreline(cfg.s, rod.r0)
         sdot = u / np.linalg.norm(dX, axis=1)
         v_nodes = rod.v0 * rod.mask[:, :3]  # a held node does not move, whatever rod.initial.velocity says
         Xdot = np.einsum("ka,kac->kc", Nw, v_nodes[nodes]) + dX * sdot[:, None]
@@ -193,6 +196,22 @@ class Model:
         np.add.at(rod_p, nodes.ravel(), ((mbar[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))
         return {"rod_p": rod_p, "label_p": mbar * np.sum(Xdot * dX, axis=1), "sdot": sdot, "Xdot": Xdot,
                 "kinetic": 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))}
+
+    @property
+    def free_labels(self):
+        """Which of the M+1 labels are unknowns: the interior ones (closed ends) or 0..M-1 (periodic: label M
+        is label 0 shifted by the period)."""
+        return slice(0, -1) if self.tube.periodic else slice(1, -1)
+
+    def centreline(self, s, r):
+        """``centreline_and_weights`` of the labels ``s`` on the rod positions ``r`` (N+1, 3): a periodic tube's
+        reads nodes 0..N-1 and wraps with the period (docs/theory.md §10.2)."""
+        from .coupled_geometry import centreline_and_weights
+
+        rod = self.rod
+        if rod.periodic:
+            return centreline_and_weights(s, r[:-1], self.tube.ds, True, rod.period)
+        return centreline_and_weights(s, r, self.tube.ds)
 
     def upgrade_level(self, q):
         """A level vector from a checkpoint written before the rod's floating origin existed gains it."""

@@ -273,15 +273,16 @@ class CoupledFluid:
 
         t, rod = model.tube, model.rod
         self.model, self.t, self.rod = model, t, rod
-        n_nodes = rod.N + 1
+        # a periodic tube's kernels read nodes 0..N-1 and wrap with the period (node N is node 0's image)
+        self.n_nodes = n_nodes = rod.N if rod.periodic else rod.N + 1
         self.fp = FluidPotential(ds=t.ds, m=t.m, mbar=t.label_mass_all, eos=t.eos, S=t.S if t.eos is not None else None,
-                                 V0=t.V0 if t.incompressible else None, p_ext=t.p_ext, g=np.array(rod.g, dtype=float))
+                                 V0=t.V0 if t.incompressible else None, p_ext=t.p_ext, g=np.array(rod.g, dtype=float),
+                                 periodic=rod.periodic, period=rod.period if rod.periodic else None)
         off, n = newton_offsets(n_nodes, t.M + 1, t.nR, t.M if t.incompressible else 0)
         self.n_order = n
         self.R_weight = 2.0 if t.has_wall and not t.wall_dynamic else 1.0
         rows, cols, vals = [], [], []
-        idx = np.full((n_nodes, 6), -1)
-        idx[rod.mask] = np.arange(rod.nz)
+        idx = rod.node_index()[:n_nodes]
         j, d = np.nonzero(idx >= 0)
         rows.append(6 * j + d)
         cols.append(model.rod_z.start + idx[j, d])
@@ -324,8 +325,11 @@ class CoupledFluid:
         s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
         if not (self._valid(s0) and self._valid(s1)):
             return None, None
-        pot = fluid_potential_step(self.fp, pt.h, s0, pt.r_n, pt.Lam_n, R0, s1, pt.r_1, Lam1, R1, mu=mu, newton=newton)
-        kin = fluid_kinetic_chart(s0, pt.r_n, pt.Lam_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, newton=newton)
+        k, fp = self.n_nodes, self.fp
+        pot = fluid_potential_step(fp, pt.h, s0, pt.r_n[:k], pt.Lam_n[:k], R0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu,
+                                   newton=newton)
+        kin = fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic,
+                                  fp.period, newton=newton)
         return pot, kin
 
     def value(self, pt):
@@ -339,7 +343,9 @@ class CoupledFluid:
         s0, _, s1, _, _, _ = self.levels(pt)
         if not (self._valid(s0) and self._valid(s1)):
             return np.nan
-        return fluid_kinetic_step(s0, pt.r_n, s1, pt.r_1, self.fp.mbar, pt.h, self.t.ds, hessian=False)[0]
+        k, fp = self.n_nodes, self.fp
+        return fluid_kinetic_step(s0, pt.r_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic, fp.period,
+                                  hessian=False)[0]
 
     def add(self, pt, d, level):
         t = self.t
@@ -350,7 +356,7 @@ class CoupledFluid:
             d.tube_lam += np.nan
             return
         Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
-        d.rod += Dp.rod + Dk.rod
+        d.rod[:self.n_nodes] += Dp.rod + Dk.rod
         gc = np.zeros(t.nconfig)
         i = t.index
         gc[:i["R"]] = Dp.s + Dk.s

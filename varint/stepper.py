@@ -573,6 +573,21 @@ class Simulation:
         Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
         return cfg, Lam, r, origin
 
+    @property
+    def _n_kernel_nodes(self):
+        rod = self.model.rod
+        return rod.N if rod.periodic else rod.N + 1
+
+    def _coupled_volumes(self, cfg, Lam, r):
+        """The parcels' stretched volumes at one level (docs/theory.md §10.3)."""
+        from .coupled_geometry import stretched_volumes
+        from .coupled_terms import element_strains, stretch_map
+
+        t = self.model.tube
+        G, _, _ = element_strains(Lam, r, t.ds)
+        gamma = stretch_map(self._n_kernel_nodes, t.periodic) @ np.linalg.norm(G, axis=1)
+        return stretched_volumes(cfg.s, cfg.R, gamma, t.ds, t.periodic)
+
     def _coupled_monitors(self):
         """Energy, momenta, mass and entropy of the coupled tube (docs/theory.md §10.5, §10.6).
 
@@ -582,7 +597,7 @@ class Simulation:
         :meth:`varint.model.Model.initial_legendre`) plus the potential at the level.  Momenta: the full nodal
         momenta (they carry the fluid's, §10.6) about the origin and the centre of mass of rod and fluid.
         """
-        from .coupled_geometry import centreline, stretched_volumes
+        from .coupled_geometry import stretched_volumes
         from .coupled_terms import element_strains, stretch_map
 
         m, st, h = self.model, self.state, self.h
@@ -638,15 +653,14 @@ class Simulation:
         out["energy"] = Kf + Kr + Kw + U
         # mass from the state: density field times the stretched parcel volumes (incompressible: at the last
         # step's midpoint, where the constraint holds)
-        G, _, _ = element_strains(Lam, r, t.ds)
-        gamma = stretch_map(N + 1) @ np.linalg.norm(G, axis=1)
-        V = stretched_volumes(cfg.s, cfg.R, gamma, t.ds)
+        V = self._coupled_volumes(cfg, Lam, r)
         if t.incompressible and st.q_prev is not None:
             s0, R0, s1, R1, _, Lam1 = fluid.levels(sch.point(st.q_prev, sch.unknowns(st.q_prev, st.q, st.lam)))
             Lp, rp, op = unpack_level(st.q_prev[m.rod_q], N)
             G0, _, _ = element_strains(Lp, rp + op - origin, t.ds)
-            gbar = stretch_map(N + 1) @ np.linalg.norm(0.5 * (G0 + G), axis=1)
-            Vbar = stretched_volumes(0.5 * (s0 + s1), 0.5 * (R0 + R1), gbar, t.ds)
+            G1, _, _ = element_strains(Lam, r, t.ds)
+            gbar = stretch_map(self._n_kernel_nodes, t.periodic) @ np.linalg.norm(0.5 * (G0 + G1), axis=1)
+            Vbar = stretched_volumes(0.5 * (s0 + s1), 0.5 * (R0 + R1), gbar, t.ds, t.periodic)
             out["mass"] = float(np.sum(rod.node_mass) + np.sum(t.m / t.V0 * Vbar))
             out["constraint_residual"] = float(np.max(np.abs(Vbar / t.V0 - 1.0)))
         else:
@@ -661,7 +675,7 @@ class Simulation:
         spin = np.einsum("nij,nj->i", Lam, Pi)
         out["linear_momentum"] = P
         out["angular_momentum"] = np.cross(origin, P) + np.cross(r, p).sum(0) + spin
-        X = centreline(cfg.s, r, t.ds)[0]
+        X = m.centreline(cfg.s, r)[3]
         c = (np.sum(rod.node_mass[:, None] * r, axis=0) + np.sum(mbar[:, None] * X, axis=0)) / M_tot
         out["angular_momentum_cm"] = np.cross(r - c, p).sum(0) + spin
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
@@ -685,8 +699,6 @@ class Simulation:
         """
         import scipy.sparse.linalg as spla
 
-        from .coupled_geometry import centreline_and_weights
-
         m, st = self.model, self.state
         t, rod = m.tube, m.rod
         N, M = rod.N, t.M
@@ -698,7 +710,7 @@ class Simulation:
             wmu = np.zeros(n1)
             wmu[:-1] += 0.5 * rod.ds * mu
             wmu[1:] += 0.5 * rod.ds * mu
-        nodes, Nw, _, _, dX, _ = centreline_and_weights(cfg.s, r, t.ds)
+        nodes, Nw, _, _, dX, _ = m.centreline(cfg.s, r)
         k = np.repeat(np.arange(M + 1), 4)
         # variables: per node [rdot (3), body omega (3)], then the labels' sdot; Xdot_k = sum_a N_a rdot + X'_k sdot_k
         rr = (3 * k[:, None] + np.arange(3)).ravel()
@@ -714,10 +726,11 @@ class Simulation:
         rod_diag = np.concatenate([np.repeat((rod.section.rhoA * wmu)[:, None], 3, axis=1),
                                    rod.section.inertia[None, :] * wmu[:, None]], axis=1).ravel()
         Mt = (Jx.T @ sp.diags(mbar) @ Jx).tocsr() + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
-        active = np.concatenate([np.nonzero(rod.mask.ravel())[0], 6 * n1 + np.arange(1, M)])
+        labels = np.arange(M + 1)[m.free_labels]
+        active = np.concatenate([np.nonzero(rod.mask.ravel())[0], 6 * n1 + labels])
         pr = st.p[m.rod_p].reshape(2, n1, 3).transpose(1, 0, 2).reshape(-1)
         ps = np.zeros(M + 1)
-        ps[1:-1] = st.p[m.tube_p][t.layout["s"]]
+        ps[labels] = st.p[m.tube_p][t.layout["s"]]
         pa = np.concatenate([pr, ps])[active]
         Maa = Mt[active][:, active].tocsc()
         if rod.constrained:
@@ -749,21 +762,20 @@ class Simulation:
         out = {}
         t = m.tube
         if m.coupled:
-            from .coupled_geometry import centreline, centreline_and_weights, stretched_volumes
-            from .coupled_terms import element_strains, stretch_map
-
             cfg, Lam, r, origin = self._coupled_levels()
-            G, _, _ = element_strains(Lam, r, t.ds)
-            V = stretched_volumes(cfg.s, cfg.R, stretch_map(m.N + 1) @ np.linalg.norm(G, axis=1), t.ds)
+            V = self._coupled_volumes(cfg, Lam, r)
             rho = t.m / t.V0 if t.incompressible else t.m / V
+            geo = m.centreline(cfg.s, r)
             out["fluid/s"] = cfg.s.copy()
-            out["fluid/position"] = centreline(cfg.s, r, t.ds)[0] + origin
+            out["fluid/position"] = geo[3] + origin
             out["fluid/density"] = rho
             out["fluid/pressure"] = cfg.mu.copy() if t.incompressible else t.eos.pressure(rho, t.S)
             # the speed along the tube relative to it, |X'| ds/dt, of the last step (closed ends: 0)
             u = np.zeros(t.M + 1)
-            u[1:-1] = st.v[m.tube_p][t.layout["s"]]
-            u *= np.linalg.norm(centreline_and_weights(cfg.s, r, t.ds)[4], axis=1)
+            u[m.free_labels] = st.v[m.tube_p][t.layout["s"]]
+            if t.periodic:
+                u[-1] = u[0]
+            u *= np.linalg.norm(geo[4], axis=1)
             out["fluid/velocity"] = u
             out["fluid/entropy"] = t.S.copy()
             if t.has_wall:

@@ -241,6 +241,8 @@ class TubePart:
             #: label masses of every label, the closed ends' included (m_0/2, m_{M-1}/2): on the coupled tube the
             #: end labels move with the rod's end nodes and keep their kinetic energy (docs/theory.md §10.1)
             self.label_mass_all = np.concatenate([[0.5 * m[0]], 0.5 * (m[:-1] + m[1:]), [0.5 * m[-1]]])
+            if self.periodic:  # label M is label 0 shifted by the period: counted once, at label 0
+                self.label_mass_all = np.concatenate([[0.5 * (m[-1] + m[0])], 0.5 * (m[:-1] + m[1:]), [0.0]])
             if self.coupled:  # the labels' kinetic energy is the coupled term's, not a diagonal mass
                 mass[self.layout["s"]] = 0.0
         if self.wall_dynamic:
