@@ -10,7 +10,7 @@ minimum density and pressure, and the Newton iterations per step.  Prints a mark
 Parcels have equal length at t = 0 (that is how varint.tube places the labels): each side of the
 diaphragm is resolved by N/2 parcels, whatever its density.
 
-Run:  python scripts/shock_tube_convergence.py [--cases sod,ratio100,ratio1e5] [--max 3200] [--cfl 0.5]
+Run:  python scripts/shock_tube_convergence.py [--cases sod,ratio100,ratio1e5] [--max 3200] [--cfl 0.5] [--limiter]
 """
 
 from __future__ import annotations
@@ -95,10 +95,11 @@ def contact_cells(s, rho, exact, t, margin=0.05):
     return int(np.sum(near & (rho > lo + margin * d) & (rho < hi - margin * d)))
 
 
-def run(case, M, cfl=0.5, cQ=1.0, cL=0.5):
+def run(case, M, cfl=0.5, cQ=1.0, cL=0.5, limiter=False):
     left, right, end = CASES[case]
     text, n = scene_text(M, left, right, end, cfl, cQ, cL)
     model = build_model(parse_scene(text))
+    model.forces[0].limiter = limiter  # Christensen's limiter (varint.shock_capturing.limited)
     sim = Simulation(model)
     E0 = sim.monitors()["energy"]
     t0 = time.perf_counter()
@@ -122,16 +123,18 @@ def main():
     ap.add_argument("--cfl", type=float, default=0.5)
     ap.add_argument("--quadratic", type=float, default=1.0)
     ap.add_argument("--linear", type=float, default=0.5)
+    ap.add_argument("--limiter", action="store_true", help="Christensen's limiter on the viscous pressure")
     args = ap.parse_args()
     run("sod", 20)  # compile the numba kernels outside the timings
-    print(f"c_Q = {args.quadratic:g}, c_L = {args.linear:g}, CFL {args.cfl:g} on the largest initial sound speed\n")
+    print(f"c_Q = {args.quadratic:g}, c_L = {args.linear:g}{', limiter' if args.limiter else ''}, CFL {args.cfl:g} "
+          "on the largest initial sound speed\n")
     print("| case | N | steps | density L1 | rate | wall [s] | energy error | min rho | min p | Newton it/step | contact cells |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for case in args.cases.split(","):
         prev = None
         M = 100
         while M <= args.max:
-            r = run(case, M, args.cfl, args.quadratic, args.linear)
+            r = run(case, M, args.cfl, args.quadratic, args.linear, args.limiter)
             rate = "" if prev is None else f"{math.log2(prev / r['l1']):.2f}"
             print(f"| {case} | {M} | {r['steps']} | {r['l1']:.3e} | {rate} | {r['wall']:.2f} | {r['energy']:.1e} | "
                   f"{r['rho_min']:.4g} | {r['p_min']:.4g} | {r['iterations']:.1f} | {r['contact']} |", flush=True)

@@ -9,9 +9,8 @@ creeps (docs/validation.md): the wave steepens towards shocks.  With [shock_capt
 * the viscous heating W_k of each parcel per step (from its entropy change at the new volume: the heating's
   definition, varint.shock_capturing), summed as the dissipated energy, relative to the largest kinetic
   energy of the run (the wave's energy scale);
-* where it happens: the share of each step's heating carried by the two most heated parcels, averaged
-  over the steps with weight W (1 for a single front; a smooth compression spreads it over the half of the
-  tube being compressed: 2/8 = 0.25 for a uniform spread, about 0.4 for the cosine);
+* where it happens: the share of each step's heating carried by the two most heated parcels, averaged over
+  the steps with weight W (2/16 = 0.125 for heating spread evenly over the 16 parcels);
 * for A = 2, 5, 10, 20 %: how much of the wave's energy is dissipated, with the defaults (c_Q = 1,
   c_L = 0.5), with the quadratic term alone (c_L = 0), and with the defaults under Christensen's limiter
   (varint.shock_capturing.limited), which switches Q off where the compression is smooth.
@@ -149,7 +148,8 @@ def main(argv=None):
     ap.add_argument("--long-h", type=float, default=4e-5)
     a = ap.parse_args(argv)
     print(f"{a.parcels} parcels, h = {a.h:g} s, {a.steps} steps ({a.steps * a.h:g} s)\n")
-    print("| amplitude | Q | max abs(E/E0 - 1) | dissipated / max kinetic energy | share of heating in the top 2 parcels | entropy non-decreasing | wall [s] |")
+    print("| amplitude | Q | max abs(E/E0 - 1) | dissipated / max kinetic energy | share of heating in the top 2 parcels "
+          "| entropy non-decreasing | wall [s] |")
     print("|---|---|---|---|---|---|---|")
     for A in (0.02, 0.05, 0.1, 0.2):
         for shock in ({}, {"linear": 0.0}, {"limiter": True}):

@@ -18,7 +18,7 @@ The run stops before the left end's rarefaction (its head moves at u + c ~ 790 m
 measurement points behind the shock and before the precursor ahead reaches the right end.
 
 Run:  python scripts/traveling_shock_capture.py [--parcels 400,800] [--start profile,step,rest]
-      [--end 1.2e-3] [--cfl 0.4]      (a few minutes for the defaults)
+      [--end 1.2e-3] [--cfl 0.4] [--limiter]      (a few minutes for the defaults)
 """
 
 from __future__ import annotations
@@ -104,8 +104,10 @@ def sample(c, f, x):
     return np.interp(x, c, f)
 
 
-def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=False):
-    """Run one case; returns a dict with the track (t, x_shock), the fitted speed and the comparisons."""
+def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=False, limiter=False):
+    """Run one case; returns a dict with the track (t, x_shock), the fitted speed and the comparisons.
+
+    ``limiter``: Christensen's limiter on the viscous pressure (varint.shock_capturing.limited)."""
     ds = 2.0 / parcels
     h = cfl * ds / 800.0  # 800 m/s: the fastest characteristic behind the shock (u + c)
     n = int(math.ceil(end / h))
@@ -114,6 +116,7 @@ def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=Fals
     wave = wave_of(d)
     level = 0.5 * (wave.ahead[2] + wave.behind[2])  # the wave's pressures either side of the shock
     sim = Simulation(build_model(parse_scene(to_toml(d))))
+    sim.model.forces[0].limiter = limiter
     t = sim.model.tube
     E0 = sim.monitors()["energy"]
     S_prev = t.S.copy()
@@ -152,7 +155,12 @@ def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=Fals
     for name, got, want in (("p", sample(c, p, xs + off), pw), ("rho", sample(c, rho, xs + off), rhow),
                             ("u", sample(c, u, xs + off), uw), ("R", sample(c, R, xs + off), Rw)):
         cmp_[name] = (got, want)
-    return {"parcels": parcels, "start": start, "h": h, "steps": n, "wall": wall, "t": track_t, "x": track_x,
+    # the state just behind the captured front (mean over 3-10 cm behind it) and the lowest pressure ahead
+    beh = (c > xs - 0.10) & (c < xs - 0.03)
+    ahead = (c > xs) & (c < xs + 0.3)
+    front = {"p": float(np.mean(p[beh])), "rho": float(np.mean(rho[beh])), "u": float(np.mean(u[beh])),
+             "R": float(np.mean(R[beh])), "p_min_ahead": float(np.min(p[ahead]))}
+    return {"parcels": parcels, "start": start, "limiter": limiter, "front": front, "h": h, "steps": n, "wall": wall, "t": track_t, "x": track_x,
             "speed": speed, "speed_all": speed_all, "travel": float(track_x[-1] - track_x[0]),
             "compare": cmp_, "energy_error": energy_err, "entropy_ok": entropy_ok, "wave": wave,
             "newton": sim.stats.total_iterations / n}
@@ -160,7 +168,7 @@ def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=Fals
 
 def report(r):
     w = r["wave"]
-    print(f"\n### start = {r['start']}, {r['parcels']} parcels (ds = {2.0 / r['parcels'] * 1e3:.1f} mm), "
+    print(f"\n### start = {r['start']}{', limiter' if r['limiter'] else ''}, {r['parcels']} parcels (ds = {2.0 / r['parcels'] * 1e3:.1f} mm), "
           f"h = {r['h']:.2e} s, {r['steps']} steps, {r['wall']:.0f} s")
     print(f"shock travel {r['travel']:.3f} m = {r['travel'] / 0.05:.1f} R0; speed (second half) {r['speed']:.2f} m/s "
           f"({(r['speed'] / SPEED - 1) * 100:+.2f} % of {SPEED:g}), whole run {r['speed_all']:.2f} m/s; "
@@ -172,6 +180,9 @@ def report(r):
     far = {"p": w.p_plus, "rho": w.rho_plus, "u": w.u_plus, "R": w.R_plus}
     for name, (got, want) in r["compare"].items():
         print(f"| {name} | " + " | ".join(f"{(g - v) / far[name] * 100:+.2f} %" for g, v in zip(got, want)) + " |")
+    f = r["front"]
+    print(f"captured front: 3-10 cm behind it p {f['p']:.0f} Pa, rho {f['rho']:.4f}, u {f['u']:.1f} m/s, R {f['R'] * 1e3:.2f} mm; "
+          f"lowest pressure within 30 cm ahead {f['p_min_ahead']:.0f} Pa (wave: {w.ahead[2]:.0f} Pa just ahead of the shock)")
     print(f"far state behind (wave): p+ {w.p_plus:.0f} Pa, rho+ {w.rho_plus:.4f}, u+ {w.u_plus:.2f} m/s, "
           f"R+ {w.R_plus * 1e3:.2f} mm; at the shock R {w.R_shock * 1e3:.2f} mm")
 
@@ -183,10 +194,11 @@ def main(argv=None):
     ap.add_argument("--end", type=float, default=1.2e-3)
     ap.add_argument("--cfl", type=float, default=0.4)
     ap.add_argument("--progress", action="store_true")
+    ap.add_argument("--limiter", action="store_true", help="Christensen's limiter on the viscous pressure")
     a = ap.parse_args(argv)
     for start in a.start.split(","):
         for N in (int(x) for x in a.parcels.split(",")):
-            report(run(N, start, end=a.end, cfl=a.cfl, progress=a.progress))
+            report(run(N, start, end=a.end, cfl=a.cfl, progress=a.progress, limiter=a.limiter))
 
 
 if __name__ == "__main__":
