@@ -1,34 +1,41 @@
-"""Shock capturing on the straight rigid uniform tube: an artificial viscous pressure by the discrete
-Lagrange–d'Alembert principle, the heating it causes, and an energy-exact pressure (docs/theory.md,
-"Shock capturing").
+"""Shock capturing in the straight tube: an artificial viscous pressure by the discrete Lagrange–d'Alembert
+principle, the heating it causes, and an energy-exact pressure (docs/theory.md, "Shock capturing").
 
 The conservative scheme (docs/theory.md §4) cannot carry a shock: the midpoint rule has no way to turn
 kinetic energy into heat, so a steepening wave rings.  Scene section ``[shock_capturing]`` adds one
-non-conservative force (:class:`ShockCapturing`, a :class:`varint.forces.Force`) that does three things:
+non-conservative force (a :class:`varint.forces.Force`) that does three things:
 
 1. **Viscous pressure** (von Neumann & Richtmyer, J. Appl. Phys. 21, 232 (1950); the linear term of
    Landshoff, LANL report LA-1430 (1955)), in compression only:
 
        Q_k = rho_k (c_Q^2 du_k^2 + c_L c_k |du_k|)   if du_k < 0,  else 0,
-       du_k = (s_{k+1}^{n+1} - s_{k+1}^n - s_k^{n+1} + s_k^n) / h,
+       du_k = (V_k^{n+1} - V_k^n) / (A_k h),
 
-   the jump of the step's mean label velocity across parcel k, with rho_k = m_k / Vbar_k and the sound
-   speed c_k at the step's midpoint volume Vbar_k = (V_k^n + V_k^{n+1}) / 2.  Q acts like an extra
-   pressure at the midpoint: f^- = f^+ = (h/2) sum_k Q_k dV_k/ds (Marsden & West 2001, §3.2).
-2. **Mean-value pressure.**  The midpoint pressure p(Vbar_k) is replaced by the discrete gradient
+   the jump of the step's mean label velocity across parcel k at cross-section A_k (the tube's, or in a
+   swelling tube the parcel's mean cross-section at level n, V_k^n / (s_{k+1}^n - s_k^n)), with
+   rho_k = m_k / Vbar_k and the sound speed c_k at the step's midpoint volume Vbar_k = (V_k^n + V_k^{n+1}) / 2.
+   Optionally (``limiter``) Q_k is multiplied by 1 - psi_k, Christensen's monotonic limiter of the
+   neighbours' du (:func:`limited`): smooth compressions are then not viscous.
+2. **Mean-value pressure.**  The midpoint pressure p(V_k(z_mid)) is replaced by the discrete gradient
    Ptilde_k = -(E_k(V_k^{n+1}) - E_k(V_k^n)) / (V_k^{n+1} - V_k^n) (Gonzalez, J. Nonlinear Sci. 6, 449
-   (1996)), entered as a second force (Ptilde_k - p(Vbar_k)) of the same form.  With V linear in the
-   labels (rigid uniform tube) the kinetic energy then changes by exactly sum_k (Ptilde_k + Q_k) dV_k.
+   (1996)).  Both Ptilde_k and Q_k act through a discrete gradient of the parcel volume, Gbar_k with
+   Gbar_k . (z^{n+1} - z^n) = V_k^{n+1} - V_k^n: the constant dV_k/dz of a rigid uniform tube
+   (:class:`ShockCapturing`), the averaged vector field of V_k in its own labels and radii otherwise
+   (:class:`SwellingShockCapturing`, :func:`avf_volume_gradients`), where a tube-law wall's energy, not
+   quadratic in R, gets its own discrete gradient too.  The kinetic energy then changes by exactly
+   sum_k (Ptilde_k + Q_k) dV_k minus the wall's energy change.
 3. **Heating** (:meth:`ShockCapturing.after_step`): once a step is accepted each parcel's entropy rises so
    that its internal energy at the new volume grows by the viscous work W_k = -Q_k (V_k^{n+1} - V_k^n) >= 0.
 
-Together: kinetic + internal energy is conserved to the Newton tolerance, the axial momentum of a periodic
-tube too (the forces are differences of parcel quantities), and no parcel's entropy decreases.
+Together: total energy (kinetic of gas and wall, internal, wall elastic, p_ext Vol) is conserved to the
+Newton tolerance, the axial momentum of a periodic rigid uniform tube too (the forces are differences of
+parcel quantities), and no parcel's entropy decreases.
 
-Only an ideal gas in a rigid uniform tube (no ``[wall]``, no ``tube.area_table``, no ``[rod]``) with the
-midpoint scheme: there V_k = A (s_{k+1} - s_k) and the heating has a closed form (varint.scene refuses
-the rest in one line).  Kernels are numba; tests/test_shock_capturing.py checks each one against finite
-differences or the closed forms.
+An ideal gas (the heating has a closed form) with the midpoint scheme in a straight tube: rigid and
+uniform, rigid with ``tube.area_table``, or with a dynamic wall (linear law or tube law).  varint.scene
+refuses a quasistatic wall (its radii are half-level unknowns), the coupled tube (``[rod]``) and other fluids
+in one line.  Kernels are numba; tests/test_shock_capturing.py checks each one against finite differences,
+closed forms or a NumPy reference.
 """
 
 from __future__ import annotations
