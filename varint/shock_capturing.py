@@ -636,6 +636,8 @@ class SwellingShockCapturing(ShockCapturing):
         return P + Q, dP + dQ, Q, V0, V1
 
     def _path(self, pt, tau):
+        if tau == 0.5:  # the midpoint term's own configuration, bit for bit (its internal-energy force is cancelled)
+            return self._cfg(0.5 * (pt.q0 + pt.q1), pt.lam)
         return self._cfg(pt.q0 + tau * (pt.q1 - pt.q0), pt.lam)
 
     # -- Force interface ---------------------------------------------------------------------
