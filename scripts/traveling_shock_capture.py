@@ -38,13 +38,15 @@ sys.path.insert(0, str(ROOT / "tests"))
 from helpers import to_toml  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.shocks import traveling_shock, tube_of_scene  # noqa: E402
+from varint.shocks import ideal_gas_state, relative_residuals, rh_residuals, traveling_shock, tube_of_scene  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "rubber_tube_traveling_shock.toml"
 SPEED = 447.0
 X0 = 1.0
 #: distances from the shock (m, negative: behind) where the captured fields are compared with the wave's profile
 OFFSETS = (-0.3, -0.2, -0.1, -0.05, 0.1, 0.2)
+#: parcels either side of the captured shock whose states enter the jump conditions (varint.shocks.measure_shock's default)
+RH_OFFSET = 4
 
 
 def scene_dict(parcels, start="profile", h=None, end=1.2e-3, shock=True):
@@ -160,7 +162,21 @@ def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=Fals
     ahead = (c > xs) & (c < xs + 0.3)
     front = {"p": float(np.mean(p[beh])), "rho": float(np.mean(rho[beh])), "u": float(np.mean(u[beh])),
              "R": float(np.mean(R[beh])), "p_min_ahead": float(np.min(p[ahead]))}
-    return {"parcels": parcels, "start": start, "limiter": limiter, "front": front, "h": h, "steps": n, "wall": wall, "t": track_t, "x": track_x,
+    # the paper's jump conditions (RH_mass, RH_momentum, RH_energy; straight tube, Q = pi R^2) across the
+    # captured shock: the states `offset` parcels either side of its steepest jump, the fitted speed; and the
+    # same for the wave's profile sampled at those two positions (what the smooth variation over that span
+    # alone leaves)
+    g = wave.tube.gamma
+    i = int(np.argmin(np.abs(0.5 * (c[:-1] + c[1:]) - xs)))
+    il, ir = i - RH_OFFSET, i + 1 + RH_OFFSET
+    left = ideal_gas_state(rho[il], u[il], p[il], g, R=R[il])
+    right = ideal_gas_state(rho[ir], u[ir], p[ir], g, R=R[ir])
+    Rw2, rw2, uw2, pw2 = wave.profile(np.array([c[il] - xs, c[ir] - xs]))
+    wl = ideal_gas_state(rw2[0], uw2[0], pw2[0], g, R=Rw2[0])
+    wr = ideal_gas_state(rw2[1], uw2[1], pw2[1], g, R=Rw2[1])
+    rh = {"captured": relative_residuals(rh_residuals(left, right, speed)),
+          "wave": relative_residuals(rh_residuals(wl, wr, SPEED)), "span": float(c[ir] - c[il])}
+    return {"parcels": parcels, "start": start, "limiter": limiter, "front": front, "rh": rh, "h": h, "steps": n, "wall": wall, "t": track_t, "x": track_x,
             "speed": speed, "speed_all": speed_all, "travel": float(track_x[-1] - track_x[0]),
             "compare": cmp_, "energy_error": energy_err, "entropy_ok": entropy_ok, "wave": wave,
             "newton": sim.stats.total_iterations / n}
@@ -180,6 +196,12 @@ def report(r):
     far = {"p": w.p_plus, "rho": w.rho_plus, "u": w.u_plus, "R": w.R_plus}
     for name, (got, want) in r["compare"].items():
         print(f"| {name} | " + " | ".join(f"{(g - v) / far[name] * 100:+.2f} %" for g, v in zip(got, want)) + " |")
+    rh = r["rh"]
+    print(f"jump conditions across the captured shock (states {RH_OFFSET} parcels either side, {rh['span'] * 100:.1f} cm "
+          "apart), relative residuals mass / momentum / energy: "
+          + " / ".join(f"{rh['captured'][k]:.1e}" for k in ("mass", "momentum", "energy"))
+          + "; the wave's own profile at the same two points: "
+          + " / ".join(f"{rh['wave'][k]:.1e}" for k in ("mass", "momentum", "energy")))
     f = r["front"]
     print(f"captured front: 3-10 cm behind it p {f['p']:.0f} Pa, rho {f['rho']:.4f}, u {f['u']:.1f} m/s, R {f['R'] * 1e3:.2f} mm; "
           f"lowest pressure within 30 cm ahead {f['p_min_ahead']:.0f} Pa (wave: {w.ahead[2]:.0f} Pa just ahead of the shock)")
