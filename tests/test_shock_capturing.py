@@ -301,7 +301,7 @@ def test_without_the_section_nothing_changes():
 
 def test_scene_keys_defaults_and_refusals():
     sc = parse_scene(to_toml(tube_scene(10)))
-    assert sc.shock_capturing == {"quadratic": 1.0, "linear": 0.5}
+    assert sc.shock_capturing == {"quadratic": 1.0, "linear": 0.5, "limiter": "none"}
     d = tube_scene(10)
     d["wall"] = {"model": "dynamic", "a": 1.0, "beta1": 1.0, "beta2": 1.0}
     parse_scene(to_toml(d))  # a dynamic wall is supported (SwellingShockCapturing)
@@ -747,3 +747,10 @@ def test_sloshing_20_percent_energy_kept_entropy_produced():
         dissipated[limiter] = float(np.sum(E(t.S) - E(S0)))  # the heat the viscosity put into the gas
         assert dissipated[limiter] > 0
     assert dissipated[True] < 0.3 * dissipated[False], dissipated
+
+
+def test_limiter_scene_key_switches_the_limiter_on():
+    d = tube_scene(50)
+    assert build(d).forces[0].limiter is False
+    d["shock_capturing"] = {"limiter": "christensen"}
+    assert build(d).forces[0].limiter is True

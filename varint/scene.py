@@ -163,9 +163,13 @@ SCHEMA = MappingProxyType({
     "shock_capturing": (
         Key("quadratic", "float", 1.0, "", "c_Q of the von Neumann-Richtmyer viscous pressure Q = rho (c_Q^2 du^2 + c_L c abs(du)), "
             "acting in compression only (du < 0: the jump of the step's label velocity across a parcel); c_Q sets the "
-            "shock's width in parcels (docs/theory.md, Shock capturing). Needs an ideal gas in a rigid uniform tube "
-            "(no [wall], [rod] or tube.area_table) and the midpoint scheme", low=0.0),
-        Key("linear", "float", 0.5, "", "c_L of the linear (Landshoff) part of Q: damps the ringing behind the shock", low=0.0),
+            "shock's width in parcels (docs/theory.md §11a). Needs an ideal gas in a straight tube, rigid (uniform or "
+            "tube.area_table) or with a dynamic wall (no [rod], no quasistatic wall), and the midpoint scheme", low=0.0),
+        Key("linear", "float", 0.5, "", "c_L of the linear (Landshoff) part of Q: damps the ringing behind the shock "
+            "(and, at first order, smooth compressions: see limiter)", low=0.0),
+        Key("limiter", "str", "none", "", "christensen: Christensen's limiter on Q, no viscosity in smooth compressions "
+            "(for long runs of smooth waves; the strong shock tubes converge more slowly with it)",
+            choices=("none", "christensen")),
     ),
     "output": (
         Key("file", "str", None, "", "HDF5 run file (default: the scene name with .h5)"),

@@ -241,7 +241,7 @@ class ShockCapturing(Force):
         self.gamma, self.cv = eos.gamma, eos.cv
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
         #: Christensen's limiter on Q (:func:`limited`): off unless the section asks for it (key ``limiter``)
-        self.limiter = bool(keys.limiter)
+        self.limiter = getattr(keys, "limiter", "none") == "christensen"
         self.A = math.pi * float(tube.R0) ** 2
         M = tube.M
         # The labels are s = c0_s + B_s z with B_s a 0/1 selection (interior labels; a periodic tube's s_M
@@ -596,7 +596,7 @@ class SwellingShockCapturing(ShockCapturing):
         self.tube = tube
         self.gamma, self.cv = eos.gamma, eos.cv
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
-        self.limiter = bool(keys.limiter)
+        self.limiter = getattr(keys, "limiter", "none") == "christensen"
         if tube.nlam:
             raise ValueError("shock capturing: the swelling tube needs every unknown to carry inertia (a dynamic wall)")
         self.nz = tube.nz
