@@ -299,7 +299,14 @@ class CoupledFluid:
         cols.append(model.tube_z.start + B.col)
         vals.append(w)
         self.P = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, model.nz))
-        self.PT = self.P.T.tocsr()
+        # every kernel index maps to at most one step unknown (B is a selection): J = P^T J_kernel P is then a
+        # relabelling of the kernel's triplets, done by indexing instead of two sparse products
+        P = self.P.tocoo()
+        assert np.all(np.bincount(P.row, minlength=n) <= 1)
+        self.z_of = np.full(n, -1)
+        self.z_of[P.row] = P.col
+        self.w_of = np.zeros(n)
+        self.w_of[P.row] = P.data
         self.BT = t.B.T.tocsr()
 
     def levels(self, pt):
@@ -375,8 +382,10 @@ class CoupledFluid:
         r = np.concatenate([pot.newton[0], kin.newton[0]])
         c = np.concatenate([pot.newton[1], kin.newton[1]])
         v = np.concatenate([pot.newton[2], kin.newton[2]])
-        Jh = sp.csr_matrix((v, (r, c)), shape=(self.n_order, self.n_order))
-        return (self.PT @ Jh @ self.P).tocsc()
+        zr, zc = self.z_of[r], self.z_of[c]
+        keep = (zr >= 0) & (zc >= 0)
+        nz = self.model.nz
+        return sp.csc_matrix((v[keep] * self.w_of[r[keep]] * self.w_of[c[keep]], (zr[keep], zc[keep])), shape=(nz, nz))
 
     def constant_diagonal_jacobian(self):
         return False
