@@ -6,6 +6,7 @@ real run files.
 """
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -305,3 +306,34 @@ def test_plot_run_writes_the_pngs_of_a_tube_run_and_of_a_static_rod_file(tmp_pat
         assert sorted(p.name for p in paths) == [f"{name}_fields.png", f"{name}_monitors.png"]
         for p in paths:
             assert p.read_bytes()[:4] == b"\x89PNG" and p.stat().st_size > 10_000
+
+
+def test_animate_writes_one_gif_frame_per_record_of_a_coupled_run(tmp_path):
+    """`varint plot --animate`: the rod's centreline (and the fluid's labels) in 3D, one frame per record; a run
+    without a rod gets a note, not an error."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    from varint.plotting import animate_run, centreline_frames
+    from varint.io import read_run
+
+    text = (Path(__file__).resolve().parent.parent / "examples" / "water_filled_hose.toml").read_text()
+    text = text.replace("end = 2.0", "end = 0.02").replace("every = 10", "every = 4")
+    (tmp_path / "hose.toml").write_text(text)
+    out = tmp_path / "hose.h5"
+    proc = subprocess.run([sys.executable, "-m", "varint", "run", str(tmp_path / "hose.toml"), "-o", str(out), "-q"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    run = read_run(out)
+    t, r, axes, X, p = centreline_frames(run)
+    assert r.shape == (len(t), 21, 3) and X.shape == (len(t), 21, 3) and p.shape == (len(t), 20) and axes is not None
+    gif = animate_run(out, tmp_path / "anim")
+    with Image.open(gif) as im:
+        assert im.n_frames == len(t)
+    d = gas_scene(nodes=9, parcels=8, end=2e-5)
+    (tmp_path / "tube.toml").write_text(to_toml(d))
+    proc = subprocess.run([sys.executable, "-m", "varint", "run", str(tmp_path / "tube.toml"), "-o", str(tmp_path / "tube.h5"), "-q"],
+                          capture_output=True, text=True, timeout=300)
+    assert animate_run(tmp_path / "tube.h5") is None

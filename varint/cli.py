@@ -131,6 +131,14 @@ def cmd_plot(args):
 
     for p in plot_run(args.file, args.outdir):
         print(f"wrote {p}")
+    if args.animate:
+        from .plotting import animate_run
+
+        p = animate_run(args.file, args.outdir)
+        if p is None:
+            print("varint: note: --animate draws a rod's centreline; this run has no rod", file=sys.stderr)
+        else:
+            print(f"wrote {p}")
     return 0
 
 
@@ -294,6 +302,8 @@ def build_parser():
     pl = sub.add_parser("plot", help="PNG figures of a run file's monitors and fields")
     pl.add_argument("file")
     pl.add_argument("-d", "--outdir", default=None, help="folder for the PNGs (default: beside the file)")
+    pl.add_argument("--animate", action="store_true",
+                    help="also write FILE_anim.gif: the rod's centreline in 3D over time (the fluid's labels by pressure)")
     pl.set_defaults(func=cmd_plot)
     s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation), written as one frame")
     s.add_argument("scene")

@@ -555,3 +555,86 @@ def plot_run(path, outdir=None):
             fig.savefig(p, dpi=110)
             written.append(p)
     return written
+
+
+def centreline_frames(run, triads=True):
+    """The data of a rod run's animation: per record the centreline (N+1, 3), the frames' first axes scaled to
+    the tube radius (N+1, 3) when ``triads``, and, for the coupled tube, the fluid labels' positions and the
+    parcels' pressures.  Returns ``(t, r, axes or None, X or None, p or None)``."""
+    fld = run["fields"]
+    r = fld["rod/r"]
+    scene = _scene(run)
+    rho = float(scene.get("tube", {}).get("radius", 0.02))
+    axes = None
+    if triads and "rod/Lambda" in fld:
+        axes = 3.0 * rho * fld["rod/Lambda"][..., :, 0]  # column 0: the section's normal E_1 in space
+    X = fld.get("fluid/position")
+    p = fld.get("fluid/pressure") if X is not None else None
+    return run["time"], r, axes, X, p
+
+
+def animate_run(path, outdir=None, fps=20, max_frames=400):
+    """Write ``<stem>_anim.gif``: the rod's centreline in 3D over the records (the fluid's labels coloured by
+    the pressure of their parcels for the coupled tube), with matplotlib's Pillow writer.  Returns its path,
+    or None for a run without a rod."""
+    from matplotlib import animation, colormaps, colors
+    from matplotlib.figure import Figure
+
+    run = read_run(path)
+    if "rod/r" not in run["fields"]:
+        return None
+    t, r, axes, X, p = centreline_frames(run)
+    K = len(t)
+    pick = np.unique(np.linspace(0, K - 1, min(K, max_frames)).round().astype(int))
+    fig = Figure(figsize=(6.4, 5.2))
+    ax = fig.add_subplot(projection="3d")
+    allpts = r.reshape(-1, 3)
+    lo, hi = allpts.min(0), allpts.max(0)
+    mid, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo)) or 1.0
+    for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+        set_lim(c - 1.05 * half, c + 1.05 * half)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    if float(np.ptp(allpts[:, 2])) <= ROUNDOFF_FRACTION * half:  # planar motion: look at its plane from +z
+        ax.view_init(elev=90, azim=-90)
+        ax.set_zticks([])
+        ax.set_zlabel("")
+    (line,) = ax.plot([], [], [], color="0.2", lw=2)
+    quiv = []
+    scat = None
+    norm = None
+    if X is not None and p is not None:
+        finite = p[np.isfinite(p)]
+        norm = colors.Normalize(float(finite.min()), float(finite.max())) if finite.size else None
+    import textwrap
+
+    head = textwrap.shorten(_title(run), width=70, placeholder=" ...")
+    title = ax.set_title("", fontsize=8)
+
+    def draw(k):
+        nonlocal scat
+        line.set_data_3d(r[k, :, 0], r[k, :, 1], r[k, :, 2])
+        for q in quiv:
+            q.remove()
+        quiv.clear()
+        if axes is not None:
+            quiv.append(ax.quiver(r[k, :, 0], r[k, :, 1], r[k, :, 2], axes[k, :, 0], axes[k, :, 1], axes[k, :, 2],
+                                  color="tab:orange", lw=0.6, arrow_length_ratio=0.0))
+        if X is not None:
+            # each label coloured by the pressure of the parcel it begins (the last one by its left neighbour's)
+            pk = np.append(p[k], p[k][-1]) if p is not None else None
+            if scat is not None:
+                scat.remove()
+            scat = ax.scatter(X[k, :, 0], X[k, :, 1], X[k, :, 2], s=8,
+                              c=colormaps["viridis"](norm(pk)) if norm is not None else "tab:blue", depthshade=False)
+        title.set_text(f"{head}\nt = {t[k]:.4g} s")
+        return [line]
+
+    anim = animation.FuncAnimation(fig, draw, frames=pick, blit=False)
+    stem = Path(path).stem
+    outdir = Path(outdir) if outdir else Path(path).resolve().parent
+    outdir.mkdir(parents=True, exist_ok=True)
+    out = outdir / f"{stem}_anim.gif"
+    anim.save(out, writer=animation.PillowWriter(fps=fps), dpi=80)
+    return out
