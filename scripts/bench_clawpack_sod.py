@@ -203,6 +203,11 @@ def loglog_at(x, xs, ys):
     return float(np.exp(ly[i] + slope * (t - lx[i]))), True
 
 
+def num(x):
+    """A ratio: whole above 10, two significant digits below."""
+    return f"{x:.0f}" if x >= 10 else f"{x:.2g}"
+
+
 def rate(prev, cur):
     return "" if prev is None else f"{math.log2(prev['l1'] / cur['l1']):.2f}"
 
@@ -217,7 +222,7 @@ def table(results, cases, Ns, extra):
         for N in Ns:
             v, p = results[case, "varint", N], results[case, "pyclaw", N]
             print(f"| {case} | {N} | {v['l1']:.3e} ({rate(pv, v)}) | {p['l1']:.3e} ({rate(pp, p)}) | "
-                  f"{v['l1'] / p['l1']:.2f} | {v['cpu']:.3f} | {p['cpu']:.4f} | {v['cpu'] / p['cpu']:.0f} | "
+                  f"{v['l1'] / p['l1']:.2f} | {v['cpu']:.3f} | {p['cpu']:.4f} | {num(v['cpu'] / p['cpu'])} | "
                   f"{v['contact']} / {p['contact']} | {v['steps']} / {p['steps']} |")
             pv, pp = v, p
     if any(extra[c] for c in cases):
@@ -241,7 +246,7 @@ def table(results, cases, Ns, extra):
             c_at, x2 = loglog_at(v["l1"], l1, cpu)
             m1, m2 = ("*" if x1 else ""), ("*" if x2 else "")
             a1 = "— | —" if at is None else f"{at:.2e}{m1} | {v['l1'] / at:.1f}{m1}"
-            a2 = "— | —" if c_at is None else f"{c_at:.4f}{m2} | {v['cpu'] / c_at:.0f}{m2}"
+            a2 = "— | —" if c_at is None else f"{c_at:.4f}{m2} | {num(v['cpu'] / c_at)}{m2}"
             print(f"| {case} | {N} | {v['cpu']:.3f} | {v['l1']:.3e} | {a1} | {a2} |")
     print("\n(*: up to 2x outside PyClaw's measured range, its end segment's power law extended; —: further out.)")
 
