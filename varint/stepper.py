@@ -52,6 +52,7 @@ class Step:
         self.name = scheme or model.scheme
         self.terms = model.step_terms(self.name)
         self.order = min(getattr(t, "order", 2) for t in self.terms)
+        self._rod_flat = np.flatnonzero(model.rod.mask) if model.rod is not None else None
 
     # -- the two levels -------------------------------------------------------------------
 
@@ -67,11 +68,11 @@ class Step:
             rod = m.rod
             Lam_n, r_n, _ = unpack_level(q0[m.rod_q], rod.N)
             u = np.zeros((rod.N + 1, 6))
-            u[rod.mask] = z[m.rod_z]
+            u.ravel()[self._rod_flat] = z[m.rod_z]  # (flat indices of the mask: cheaper than a boolean mask)
             if rod.periodic:
                 u[rod.N] = u[0]  # the image node moves with node 0
             pt.Lam_n, pt.r_n = Lam_n, r_n
-            pt.r_1 = r_n + np.einsum("nij,nj->ni", Lam_n, u[:, :3])
+            pt.r_1 = r_n + np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
             pt.xi = u[:, 3:]
             if rod.constrained:
                 lam_r = np.zeros((rod.N, 3))
@@ -97,21 +98,29 @@ class Step:
             parts += [u[rod.mask], lam[m.rod_lam]]
         return np.concatenate(parts) if parts else np.empty(0)
 
-    def retract(self, q0, z, floating_origin=False):
+    def point_and_frames(self, q0, z):
+        """:meth:`point` with the new level's re-orthonormalised frames ``Lam_1`` (the accepted step's data)."""
+        pt = self.point(q0, z)
+        if self.model.rod is not None:
+            pt.Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
+        return pt
+
+    def retract(self, q0, z, floating_origin=False, pt=None):
         """The level vector q_{n+1} reached from ``q0`` by the step unknowns ``z``.
 
         Frames are re-orthonormalised (one polar Newton step: round-off, :func:`varint.rod.reorthonormalize`);
-        with ``floating_origin`` the rod's origin follows node 0 on a binary grid (exact moves).
+        with ``floating_origin`` the rod's origin follows node 0 on a binary grid (exact moves).  ``pt``: the
+        step's :meth:`point_and_frames`, when the caller has it.
         """
         m = self.model
         parts = []
         if m.tube is not None:
             parts.append(z[m.tube_z][:m.tube.nq])
         if m.rod is not None:
-            pt = self.point(q0, z)
+            pt = pt if pt is not None else self.point_and_frames(q0, z)
             _, _, origin = unpack_level(q0[m.rod_q], m.rod.N)
-            Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
-            r_1 = pt.r_1
+            Lam_1 = pt.Lam_1.copy()
+            r_1 = pt.r_1.copy()
             if m.rod.periodic:  # the image node is node 0 shifted by the period, exactly
                 Lam_1[-1] = Lam_1[0]
                 r_1[-1] = r_1[0] + m.rod.period
@@ -165,12 +174,10 @@ class Step:
                 J = b if J is None else J + b
         return sp.csc_matrix(J) if J is not None else sp.csc_matrix((0, 0))
 
-    def momentum_plus(self, q0, z):
-        """p_{n+1} = D2 L_d + f^+ (the rod's on every node)."""
+    def momentum_plus(self, q0, z, pt=None):
+        """p_{n+1} = D2 L_d + f^+ (the rod's on every node); ``pt`` as in :meth:`retract`."""
         m = self.model
-        pt = self.point(q0, z)
-        if m.rod is not None:
-            pt.Lam_1 = reorthonormalize(pt.Lam_n @ cay(pt.xi))
+        pt = pt if pt is not None else self.point_and_frames(q0, z)
         d = self._derivatives(pt, 1)
         for force in m.forces:
             force.add(pt, d, 1)
@@ -407,9 +414,9 @@ class Simulation:
         if problem is not None:
             self._factor = None
             raise self._folded(n1, problem, "at the new time level")
+        pt = self.scheme.point_and_frames(st.q, z)  # the accepted step's two levels, computed once
         if m.rod is not None:
-            xi = self.scheme.point(st.q, z).xi
-            turn = np.linalg.norm(xi, axis=1)
+            turn = np.linalg.norm(pt.xi, axis=1)
             if np.max(turn) > XI_MAX:
                 # Newton found a solution whose frames turn by more than 90 degrees in one step: either the
                 # step cannot resolve the rotation or the iteration landed on a spurious root (energy off
@@ -419,14 +426,12 @@ class Simulation:
                 self._factor = None
                 raise SolverError(f"{self._where(n1)}: node {j} turns by {deg:.0f} degrees in one "
                                   "step (more than 90); reduce time.step", step=n1, time=n1 * self.h)
-        p1 = self.scheme.momentum_plus(st.q, z)
-        if m.forces:
-            pt = self.scheme.point(st.q, z)
-            for force in m.forces:
-                if hasattr(force, "after_step"):  # e.g. a viscosity heating the parcels it slowed
-                    force.after_step(pt)
-        q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin)
-        v = self._step_velocity(st.q, z)
+        p1 = self.scheme.momentum_plus(st.q, z, pt)
+        for force in m.forces:
+            if hasattr(force, "after_step"):  # e.g. a viscosity heating the parcels it slowed
+                force.after_step(pt)
+        q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin, pt=pt)
+        v = self._step_velocity(st.q, z, pt)
         lam = np.concatenate([z[m.tube_z][m.tube.nq:] if m.tube is not None else np.empty(0), z[m.rod_lam_z]])
         self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), m.state_data())
         s = self.stats
@@ -435,14 +440,13 @@ class Simulation:
         s.total_jacobians += njac
         return self.state
 
-    def _step_velocity(self, q0, z):
+    def _step_velocity(self, q0, z, pt):
         """The predictor's data of this step: tube (q1 - q0)/h; rod b and xi on every node."""
         m = self.model
         parts = []
         if m.tube is not None:
             parts.append((z[m.tube_z][:m.tube.nq] - q0[m.tube_q]) / self.h)
         if m.rod is not None:
-            pt = self.scheme.point(q0, z)
             parts += [np.einsum("nji,nj->ni", pt.Lam_n, pt.r_1 - pt.r_n).ravel(), pt.xi.ravel()]
         return np.concatenate(parts) if parts else np.empty(0)
 
