@@ -65,7 +65,7 @@ def scene_modes(scene, count=20, about="initial", source=None):
 
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
             Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
-            res = rod_modes(model, count=count, Lam=Lam, r=r)
+            res = rod_modes(model, count=count, Lam=Lam, r=r, lam=info.get("element_forces"))
             if _turned(info):
                 d["remark"] = f"the steady rotation found has {_turned(info)}"
         else:

@@ -26,7 +26,7 @@ from numba import njit
 
 from .rod import _k_cay, _k_mm
 
-__all__ = ["constraint_step", "constraint_blocks", "element_strain_residual"]
+__all__ = ["constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
 
 @njit(cache=True)
@@ -266,3 +266,74 @@ def constraint_jacobian(Lam, r, ds, ncomp, mask):
                             cols.append(idx[node, d])
                             vals.append(Gt[node, d])
     return sp.csr_matrix((vals, (rows, cols)), shape=(N * ncomp, int(mask.sum())))
+
+
+@njit(cache=True)
+def _k_constraint_static_blocks(ds, Lam, r, lam, ncomp, mask, eps, blocks):
+    """blocks[e, :, k] = d(D1 + D2 of the element at h = 1, both levels at the configuration)/d z_k under
+    z = (dr_a, sigma_a, dr_b, sigma_b), Lambda -> Lambda cay(sigma), r -> r + dr (both levels): the derivative
+    of the constraint force -ds (dGamma/dq)^T lam, by complex step of its analytic gradient.  Columns off the
+    ``mask`` are left zero."""
+    N = Lam.shape[0] - 1
+    c = np.complex128
+    La = np.empty((3, 3), c)
+    Lb = np.empty((3, 3), c)
+    Lc = np.empty((3, 3), c)
+    C = np.empty((3, 3), c)
+    ra = np.empty(3, c)
+    rb = np.empty(3, c)
+    lc = np.empty(3, c)
+    w = np.zeros(3, c)
+    e1 = np.empty(12, c)
+    e2 = np.empty(12, c)
+    dl = np.empty(3, c)
+    inv = 1.0 / eps
+    for e in range(N):
+        for i in range(3):
+            lc[i] = lam[e, i]
+        for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                continue
+            for i in range(3):
+                ra[i] = r[e, i]
+                rb[i] = r[e + 1, i]
+                for m in range(3):
+                    La[i, m] = Lam[e, i, m]
+                    Lb[i, m] = Lam[e + 1, i, m]
+            d = k % 3
+            if k < 3:
+                ra[d] += 1j * eps
+            elif 6 <= k < 9:
+                rb[d] += 1j * eps
+            else:
+                w[:] = 0.0
+                w[d] = 1j * eps
+                _k_cay(w[0], w[1], w[2], C)
+                node = e if k < 6 else e + 1
+                for i in range(3):
+                    for m in range(3):
+                        Lc[i, m] = Lam[node, i, m]
+                _k_mm(Lc, C, La if k < 6 else Lb)
+            _k_constraint_element(1.0, ds, La, Lb, ra, rb, La, Lb, ra, rb, lc, ncomp, e1, e2, dl, 0, 2)
+            for i in range(12):
+                blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
+
+
+def constraint_static(rod, Lam, r, lam):
+    """The constraint at one configuration for statics and modes: ``(c, G, F, H)`` with c = Gamma - chi on the
+    constrained components (N*ncomp,), G = dc/dz (N*ncomp x nz, CSR; the rod's unknowns on its mask), the
+    constraint force F = -ds G^T lam (nz,) and its derivative H = dF/dz (nz x nz, CSC) — the geometric
+    stiffness of the internal forces lam."""
+    N, ncomp, mask = rod.N, rod.ncomp, rod.mask
+    _, Ga = rod.strains(Lam, r)
+    c = (Ga - np.array([1.0, 0.0, 0.0]))[:, :ncomp].ravel()
+    G = constraint_jacobian(Lam, r, rod.ds, ncomp, mask)
+    _, D1, D2, _ = constraint_step(1.0, rod.ds, Lam, r, Lam, r, lam, ncomp, (0, 2))
+    F = (D1 + D2)[mask]
+    blocks = np.empty((N, 12, 12))
+    _k_constraint_static_blocks(float(rod.ds), np.ascontiguousarray(Lam, dtype=np.float64),
+                                np.ascontiguousarray(r, dtype=np.float64), np.ascontiguousarray(lam, dtype=np.float64),
+                                int(ncomp), mask, 1e-30, blocks)
+    return c, G, F, rod.assemble(blocks)

@@ -101,7 +101,8 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     Levenberg shift of the Hessian (1e-10 of its diagonal) leaves them at rest.
     """
     model = _rod(model)
-    _unconstrained(model, "static equilibria")
+    if model.constrained and spin is not None:
+        _unconstrained(model, "steady rotations")
     import scipy.sparse.linalg as spla
 
     mask = model.mask
@@ -120,6 +121,7 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     n_steps = steps
     while True:
         Lam, r = start[0].copy(), start[1].copy()
+        lam = np.zeros((model.N, 3))  # the inextensible rod's element forces (docs/theory.md §9a)
         ok, iters = True, 0
         for k in range(1, n_steps + 1):
             lf = k / n_steps
@@ -131,9 +133,23 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
                 H = _force_jacobian(model, Lam, r, lf, spin_k, centre)
                 if spin is not None:
                     H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", spla.MatrixRankWarning)  # singular: dz is not finite, handled below
-                    dz = -spla.spsolve(H.tocsc(), g)
+                if model.constrained:
+                    # KKT of min U subject to Gamma = chi: the force balance with the constraint forces and
+                    # the constraint itself, by Newton on the saddle matrix [[dF/dz, -ds G^T], [G, 0]]
+                    from .rod_constraint import constraint_static
+
+                    c, G, Fc, Hc = constraint_static(model, Lam, r, lam)
+                    K = sp.bmat([[H + Hc, -model.ds * G.T], [G, None]]).tocsc()
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", spla.MatrixRankWarning)
+                        d = -spla.spsolve(K, np.concatenate([g + Fc, c]))
+                    dz = d[:model.nz]
+                    if np.all(np.isfinite(d)):
+                        lam[:, :model.ncomp] += d[model.nz:].reshape(model.N, model.ncomp)
+                else:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", spla.MatrixRankWarning)  # singular: dz is not finite, handled below
+                        dz = -spla.spsolve(H.tocsc(), g)
                 if not np.all(np.isfinite(dz)):
                     ok = False
                     break
@@ -147,6 +163,8 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
                 break
         if ok:
             info = {"load_steps": n_steps, "iterations": iters}
+            if model.constrained:
+                info["element_forces"] = lam.copy()
             if spin is not None:
                 # a spin about no principal axis has no steady rotation near the given shape: the rod
                 # was turned as a whole to one that has (reported, since it changes the scene)
@@ -257,7 +275,7 @@ def _spectral_spread(model, K, M):
     return np.finfo(float).eps * top / bending
 
 
-def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, method="auto"):
+def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, method="auto", lam=None):
     """Eigenfrequencies of the rod linearised about a configuration (default: the initial state).
 
     Stiffness: the Hessian of the discrete potential in (dr, sigma) (exact element Hessians,
@@ -271,7 +289,8 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     Returns ``[{"frequency": rad/s, "growth_rate": 1/s}, ...]`` sorted by frequency.
     """
     model = _rod(model)
-    _unconstrained(model, "modes")
+    if model.constrained:
+        return _constrained_modes(model, count, vectors, Lam, r, Omega, lam)
     from .analysis import gyroscopic_modes_of, modes_of, sparse_gyroscopic_modes_of, sparse_modes_of
 
     mask = model.mask
@@ -312,6 +331,35 @@ def rod_modes(model, count=20, vectors=False, Lam=None, r=None, Omega=None, meth
     if sparse:
         return sparse_gyroscopic_modes_of(K - Hf, Cf - Cf.T, M, count, vectors)
     return gyroscopic_modes_of((K - Hf).toarray(), (Cf - Cf.T).toarray(), M, count, vectors)
+
+
+def _constrained_modes(model, count, vectors, Lam, r, Omega, lam):
+    """Modes of the inextensible, unshearable rod (docs/theory.md §9a): the stiffness with the geometric
+    stiffness of the element forces ``lam`` (from :func:`static_equilibrium`'s ``info["element_forces"]``;
+    zero about an unloaded state), restricted to the null space of the constraint's Jacobian G, against the
+    lumped mass there (dense)."""
+    import scipy.linalg as sla
+
+    from .rod_constraint import constraint_static
+
+    Lam = model.Lam0 if Lam is None else Lam
+    r = model.r0 if r is None else r
+    if np.any(model.spin if Omega is None else Omega):
+        _unconstrained(model, "modes about a steady rotation")
+    lam = np.zeros((model.N, 3)) if lam is None else lam
+    _, G, _, Hc = constraint_static(model, Lam, r, lam)
+    K = -(_force_jacobian(model, Lam, r) + Hc).toarray()
+    K = 0.5 * (K + K.T)
+    Z = sla.null_space(G.toarray())
+    Mz = Z.T @ (lumped_mass(model)[model.mask][:, None] * Z)
+    w2, Y = sla.eigh(Z.T @ K @ Z, Mz)
+    order = np.argsort(w2)[:count]
+    out = []
+    for w in w2[order]:
+        out.append({"frequency": float(np.sqrt(w)) if w > 0 else 0.0, "growth_rate": float(np.sqrt(-w)) if w < 0 else 0.0})
+    if vectors:
+        return out, Z @ Y[:, order]
+    return out
 
 
 def check_rotating_base(model, Omega):
