@@ -282,3 +282,39 @@ def test_what_the_constrained_rod_cannot_do_yet_is_refused_in_one_line():
     sim = Simulation(build_model(bent))
     sim.step()
     assert sim.monitors()["rod_constraint_residual"] < 1e-12
+
+
+def test_constraint_static_blocks_are_the_derivative_of_the_constraint_force():
+    """_k_constraint_static_blocks (the geometric stiffness of the element forces) against central differences
+    of the constraint force -ds G^T lam at a bent, twisted 3D state with random element forces; and G against
+    differences of the strains."""
+    from varint.rod import banded_jacobian
+    from varint.rod_constraint import constraint_static
+    from varint.rod_statics import _retract
+
+    model = constrained(rod_scene(nodes=8, ends=("clamped", "free"), initial={"curvature": [0.4, 1.0, -0.6]}))
+    rod = model.rod
+    rng = np.random.default_rng(9)
+    lam = rng.standard_normal((rod.N, 3))
+    Lam, r = rod.Lam0 @ cay(0.1 * rng.standard_normal((rod.N + 1, 3))), rod.r0 + 0.01 * rng.standard_normal((rod.N + 1, 3))
+    c, G, F, H = constraint_static(rod, Lam, r, lam)
+
+    def force(z):
+        Lz, rz = _retract(Lam, r, z, rod.mask)
+        out = np.zeros((rod.N + 1, 6))
+        out[rod.mask] = constraint_static(rod, Lz, rz, lam)[2]
+        return out
+
+    Hfd = banded_jacobian(force, np.zeros(rod.nz), rod.mask, rod.ds).toarray()
+    assert np.max(np.abs(H.toarray() - Hfd)) < 1e-6 * np.max(np.abs(Hfd))
+
+    def strains(z):
+        Lz, rz = _retract(Lam, r, z, rod.mask)
+        return (rod.strains(Lz, rz)[1] - [1.0, 0.0, 0.0]).ravel()
+
+    Gfd = np.empty((len(c), rod.nz))
+    for i in range(rod.nz):
+        e = np.zeros(rod.nz)
+        e[i] = 1e-7
+        Gfd[:, i] = (strains(e) - strains(-e)) / 2e-7
+    assert np.max(np.abs(G.toarray() - Gfd)) < 1e-6 * np.max(np.abs(Gfd))
