@@ -880,6 +880,67 @@ def _element_scratch():
             np.empty((3, 3), c), np.empty((3, 3), c))
 
 
+@njit(cache=True, inline="always")
+def _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb):
+    """Element e's level-(n+1) chart in the step unknowns u = (b_a, xi_a, b_b, xi_b), column k moved by i eps:
+    xi of its two nodes into xa, xb and r_1 into qa, qb (a b-column moves r_1 along the level-n frame's
+    column d, since r_1 = r_n + Lambda_n b).  Shared by the Newton blocks of every rod kernel."""
+    for i in range(3):
+        xa[i] = xi[e, i]
+        xb[i] = xi[e + 1, i]
+        qa[i] = r_1[e, i]
+        qb[i] = r_1[e + 1, i]
+    d = k % 3
+    if k < 3:
+        for i in range(3):
+            qa[i] += 1j * eps * Lam_n[e, i, d]
+    elif k < 6:
+        xa[d] += 1j * eps
+    elif k < 9:
+        for i in range(3):
+            qb[i] += 1j * eps * Lam_n[e + 1, i, d]
+    else:
+        xb[d] += 1j * eps
+
+
+@njit(cache=True, inline="always")
+def _k_body_rows(Lam_n, e, col, out):
+    """out = an element's 12 derivative rows ``col`` with each node's translational rows rotated into its
+    level-n body frame (the rows of the step residual)."""
+    for i in range(3):
+        out[i] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
+        out[6 + i] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
+        out[3 + i] = col[3 + i]
+        out[9 + i] = col[9 + i]
+
+
+@njit(cache=True, inline="always")
+def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
+    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
+    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
+    (both-level) blocks."""
+    for i in range(3):
+        ra[i] = r[e, i]
+        rb[i] = r[e + 1, i]
+        for m in range(3):
+            La[i, m] = Lam[e, i, m]
+            Lb[i, m] = Lam[e + 1, i, m]
+    d = k % 3
+    if k < 3:
+        ra[d] += 1j * eps
+    elif 6 <= k < 9:
+        rb[d] += 1j * eps
+    else:  # sigma of node a (k < 6) or b
+        w[:] = 0.0
+        w[d] = 1j * eps
+        _k_cay(w[0], w[1], w[2], C)
+        node = e if k < 6 else e + 1
+        for i in range(3):
+            for m in range(3):
+                Lc[i, m] = Lam[node, i, m]
+        _k_mm(Lc, C, La if k < 6 else Lb)
+
+
 @njit(cache=True)
 def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
     """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
@@ -911,30 +972,11 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
                 for i in range(12):
                     blocks[e, i, k] = 0.0
                 continue
-            for i in range(3):
-                xa[i] = xi[e, i]
-                xb[i] = xi[e + 1, i]
-                qa[i] = r_1[e, i]
-                qb[i] = r_1[e + 1, i]
-            d = k % 3
-            if k < 3:
-                for i in range(3):
-                    qa[i] += 1j * eps * Lam_n[e, i, d]
-            elif k < 6:
-                xa[d] += 1j * eps
-            elif k < 9:
-                for i in range(3):
-                    qb[i] += 1j * eps * Lam_n[e + 1, i, d]
-            else:
-                xb[d] += 1j * eps
+            _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
             _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
             for i in range(12):
                 col[i] = e1[i].imag * inv
-            for i in range(3):  # translational rows in the level-n body frame of their node
-                blocks[e, i, k] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
-                blocks[e, 6 + i, k] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
-                blocks[e, 3 + i, k] = col[3 + i]
-                blocks[e, 9 + i, k] = col[9 + i]
+            _k_body_rows(Lam_n, e, col, blocks[e, :, k])
 
 
 @njit(cache=True)
@@ -958,26 +1000,7 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
                 for i in range(12):
                     blocks[e, i, k] = 0.0
                 continue
-            for i in range(3):
-                ra[i] = r[e, i]
-                rb[i] = r[e + 1, i]
-                for m in range(3):
-                    La[i, m] = Lam[e, i, m]
-                    Lb[i, m] = Lam[e + 1, i, m]
-            d = k % 3
-            if k < 3:
-                ra[d] += 1j * eps
-            elif 6 <= k < 9:
-                rb[d] += 1j * eps
-            else:  # sigma of node a (k < 6) or b: Lambda -> Lambda cay(i eps e_d)
-                w[:] = 0.0
-                w[d] = 1j * eps
-                _k_cay(w[0], w[1], w[2], C)
-                node = e if k < 6 else e + 1
-                for i in range(3):
-                    for m in range(3):
-                        Lc[i, m] = Lam[node, i, m]
-                _k_mm(Lc, C, La if k < 6 else Lb)
+            _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
             _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv

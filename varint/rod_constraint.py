@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .rod import _k_cay, _k_mm
+from .rod import _k_body_rows, _k_cay, _k_chart_column, _k_config_column, _k_mm
 
 __all__ = ["constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -152,22 +152,7 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, bloc
                 for i in range(3):
                     row_blocks[e, i, k] = 0.0
                 continue
-            for i in range(3):
-                xa[i] = xi[e, i]
-                xb[i] = xi[e + 1, i]
-                qa[i] = r_1[e, i]
-                qb[i] = r_1[e + 1, i]
-            d = k % 3
-            if k < 3:
-                for i in range(3):
-                    qa[i] += 1j * eps * Lam_n[e, i, d]
-            elif k < 6:
-                xa[d] += 1j * eps
-            elif k < 9:
-                for i in range(3):
-                    qb[i] += 1j * eps * Lam_n[e + 1, i, d]
-            else:
-                xb[d] += 1j * eps
+            _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
             _k_cay(xa[0], xa[1], xa[2], Ca)
             _k_cay(xb[0], xb[1], xb[2], Cb)
             _k_mm(La0, Ca, La1)
@@ -175,18 +160,11 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, bloc
             _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
             for i in range(12):
                 col[i] = e1[i].imag * inv
+            _k_body_rows(Lam_n, e, col, blocks[e, :, k])
             for i in range(3):
-                blocks[e, i, k] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
-                blocks[e, 6 + i, k] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
-                blocks[e, 3 + i, k] = col[3 + i]
-                blocks[e, 9 + i, k] = col[9 + i]
                 row_blocks[e, i, k] = dl[i].imag * inv
-        # lam columns: D1 is linear in lam, so its derivative is D1 at lam = e_i (real arithmetic suffices)
-        for i in range(3):
-            xa[i] = xi[e, i]
-            xb[i] = xi[e + 1, i]
-            qa[i] = r_1[e, i]
-            qb[i] = r_1[e + 1, i]
+        # lam columns: D1 is linear in lam, so its derivative is D1 at lam = e_i (no perturbation: eps = 0)
+        _k_chart_column(Lam_n, xi, r_1, e, 0, 0.0, xa, xb, qa, qb)
         _k_cay(xa[0], xa[1], xa[2], Ca)
         _k_cay(xb[0], xb[1], xb[2], Cb)
         _k_mm(La0, Ca, La1)
@@ -197,11 +175,7 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, bloc
             _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
             for i in range(12):
                 col[i] = e1[i].real
-            for i in range(3):
-                lam_blocks[e, i, j] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
-                lam_blocks[e, 6 + i, j] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
-                lam_blocks[e, 3 + i, j] = col[3 + i]
-                lam_blocks[e, 9 + i, j] = col[9 + i]
+            _k_body_rows(Lam_n, e, col, lam_blocks[e, :, j])
 
 
 def constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, levels=(0, 2)):
@@ -231,11 +205,10 @@ def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30):
     return blocks, lam_blocks, row_blocks
 
 
-def element_strain_residual(Lam, r, ds):
-    """max |Gamma_e - chi| over the elements at one level (the constraint's monitor)."""
-    G = 0.5 * np.einsum("nji,nj->ni", Lam[:-1] + Lam[1:], r[1:] - r[:-1]) / ds
-    G[:, 0] -= 1.0
-    return float(np.max(np.abs(G))) if len(G) else 0.0
+def element_strain_residual(rod, Lam, r):
+    """max |Gamma_e - chi| over the elements at one level (the constraint's monitor; strains of RodPart.strains)."""
+    _, Ga = rod.strains(Lam, r)
+    return float(np.max(np.abs(Ga - np.array([1.0, 0.0, 0.0])))) if len(Ga) else 0.0
 
 
 def constraint_jacobian(Lam, r, ds, ncomp, mask):
@@ -296,26 +269,7 @@ def _k_constraint_static_blocks(ds, Lam, r, lam, ncomp, mask, eps, blocks):
                 for i in range(12):
                     blocks[e, i, k] = 0.0
                 continue
-            for i in range(3):
-                ra[i] = r[e, i]
-                rb[i] = r[e + 1, i]
-                for m in range(3):
-                    La[i, m] = Lam[e, i, m]
-                    Lb[i, m] = Lam[e + 1, i, m]
-            d = k % 3
-            if k < 3:
-                ra[d] += 1j * eps
-            elif 6 <= k < 9:
-                rb[d] += 1j * eps
-            else:
-                w[:] = 0.0
-                w[d] = 1j * eps
-                _k_cay(w[0], w[1], w[2], C)
-                node = e if k < 6 else e + 1
-                for i in range(3):
-                    for m in range(3):
-                        Lc[i, m] = Lam[node, i, m]
-                _k_mm(Lc, C, La if k < 6 else Lb)
+            _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
             _k_constraint_element(1.0, ds, La, Lb, ra, rb, La, Lb, ra, rb, lc, ncomp, e1, e2, dl, 0, 2)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv

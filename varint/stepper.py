@@ -545,7 +545,7 @@ class Simulation:
         if rod.constrained:
             from .rod_constraint import element_strain_residual
 
-            out["rod_constraint_residual"] = element_strain_residual(Lam, r, rod.ds)
+            out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
         out["newton_iterations"] = self.stats.iterations
         return out
 
@@ -686,7 +686,7 @@ class Simulation:
         if rod.constrained:
             from .rod_constraint import element_strain_residual
 
-            out["rod_constraint_residual"] = element_strain_residual(Lam, r, rod.ds)
+            out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
         if t.eos is not None:
             out["entropy"] = float(np.sum(t.m * t.S))
         out["newton_iterations"] = self.stats.iterations
