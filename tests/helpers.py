@@ -83,3 +83,15 @@ def zero_crossing_frequency(t, y):
     idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
     tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
     return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
+
+
+def tip_frequency(model, steps):
+    """Angular frequency of a rod's tip motion in y over ``steps`` steps, from its zero crossings."""
+    from varint import Simulation
+
+    sim = Simulation(model)
+    t, y = np.empty(steps), np.empty(steps)
+    for i in range(steps):
+        sim.step()
+        t[i], y[i] = sim.state.t, sim.fields()["rod/r"][-1, 1]
+    return zero_crossing_frequency(t, y)

@@ -19,7 +19,7 @@ from varint.analysis import timoshenko_cantilever
 from varint.lie import cay
 from varint.rod import pack_level, unpack_level
 
-from helpers import to_toml
+from helpers import tip_frequency, to_toml
 
 SECTION = {"mass_per_length": 0.5, "rotary_inertia": 1e-4, "bending_stiffness": 5.0, "torsional_stiffness": 4.0,
            "axial_stiffness": 1e4, "shear_stiffness": 8e3}
@@ -254,18 +254,6 @@ def _release_from_mode(model, shape_of, amp=1e-4):
     rod.set_configuration(rod.Lam0 @ cay(u[:, 3:]), rod.r0 + u[:, :3], rest=True)
 
 
-def _tip_frequency(model, steps):
-    """Angular frequency of the tip's transverse motion from its zero crossings."""
-    sim = Simulation(model)
-    t, y = np.empty(steps), np.empty(steps)
-    for i in range(steps):
-        sim.step()
-        t[i], y[i] = sim.state.t, sim.fields()["rod/r"][-1, 1]
-    idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
-    tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
-    return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
-
-
 def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
     """docs/theory.md §10.7a, outside truth.  A clamped-free tube of water, labels on the nodes (M = N): to
     first order the labels stay at rest and the liquid adds rho_f A_f to rho A.  The coupled run's first
@@ -284,8 +272,8 @@ def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
                     ends={"s0": "clamped", "sL": "free"}), "time": {"step": h, "end": 10.0}})))
     _release_from_mode(heavy, heavy)
     _release_from_mode(coupled, heavy)
-    f_rod = _tip_frequency(heavy, steps)
-    f_coupled = _tip_frequency(coupled, steps)
+    f_rod = tip_frequency(heavy, steps)
+    f_coupled = tip_frequency(coupled, steps)
     f_beam = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"] + added,
                                    sec["rotary_inertia"], L, count=1)[0]
     assert f_coupled == pytest.approx(f_rod, rel=1e-6)

@@ -22,7 +22,7 @@ from varint.analysis import timoshenko_cantilever
 from varint.lie import cay
 from varint.rod import pack_level, unpack_level
 
-from helpers import to_toml
+from helpers import tip_frequency, to_toml
 from test_rod import SECTION, rod_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -137,17 +137,6 @@ def test_constraint_momenta_and_energy_of_a_free_spinning_rod():
     assert abs(np.mean(E[-200:]) - np.mean(E[1:201])) < 0.3 * np.max(np.abs(E))
 
 
-def _tip_frequency(model, steps):
-    sim = Simulation(model)
-    t, y = np.empty(steps), np.empty(steps)
-    for i in range(steps):
-        sim.step()
-        t[i], y[i] = sim.state.t, sim.fields()["rod/r"][-1, 1]
-    idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
-    tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
-    return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
-
-
 def test_cantilever_frequency_is_the_rayleigh_beam_s():
     """Released at rest from a small static tip deflection: the tip oscillates at the first bending
     frequency of the unshearable beam with rotary inertia (Timoshenko's shooting at kGA = 1e7, within 4e-7
@@ -166,7 +155,7 @@ def test_cantilever_frequency_is_the_rayleigh_beam_s():
         Lam, r, _ = static_equilibrium(loaded)
         model = constrained(rod_scene(nodes=N + 1, h=4e-3, ends=("clamped", "free"), dimension=2, section=sec))
         model.rod.set_configuration(Lam, r, rest=True)
-        f = _tip_frequency(model, 800)
+        f = tip_frequency(model, 800)
         # the midpoint rule turns a frequency w into (2/h) atan(w h/2) (-1.1e-4 here): undo it to see the lattice's
         h = model.scene.time.step
         errs.append((2.0 / h) * math.tan(0.5 * f * h) / beam - 1)
