@@ -165,7 +165,6 @@ def cmd_static(args):
     import numpy as np
 
     from .errors import VarintError as _VE
-    from .io import RunWriter
     from .model import build_model
     from .rod_statics import static_equilibrium
     from .runner import check_output, default_output
@@ -183,17 +182,8 @@ def cmd_static(args):
     Lam, r, info = static_equilibrium(model, spin=model.rod.spin if spinning else None)
     # the steady rotation: its shape with the momenta of the rigid rotation; a static equilibrium: at rest
     model.rod.set_configuration(Lam, r, rest=not spinning)
-    sim = Simulation(model)
-    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
-    try:
-        w.append(0.0, sim.monitors(), sim.fields(), sim.state)
-        w.f.attrs["static"] = True
-        w.f.attrs["load_steps"] = info["load_steps"]
-        if spinning:
-            w.f.attrs["steady_rotation"] = model.rod.spin
-            w.f.attrs["turned_deg"] = info["turned_deg"]
-    finally:
-        w.close()
+    extra = {"steady_rotation": model.rod.spin, "turned_deg": info["turned_deg"]} if spinning else {}
+    _write_static(out, scene, Simulation(model), info["load_steps"], extra)
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
     from .modes_api import _turned
@@ -205,12 +195,26 @@ def cmd_static(args):
     return 0
 
 
+def _write_static(out, scene, sim, load_steps, extra=None):
+    """A static file: the run-file layout with one record (the simulation's state) and the static attributes."""
+    from .io import RunWriter
+
+    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
+    try:
+        w.append(0.0, sim.monitors(), sim.fields(), sim.state)
+        w.f.attrs["static"] = True
+        w.f.attrs["load_steps"] = load_steps
+        for k, v in (extra or {}).items():
+            w.f.attrs[k] = v
+    finally:
+        w.close()
+
+
 def _static_coupled(args, scene, model, out):
     """``varint static`` of the coupled tube (varint.coupled_modes.coupled_static): one record, at rest."""
     import numpy as np
 
     from .coupled_modes import coupled_static
-    from .io import RunWriter
     from .rod import pack_level
     from .stepper import Simulation, State
 
@@ -221,13 +225,7 @@ def _static_coupled(args, scene, model, out):
     q = np.concatenate([zt[:t.nq], pack_level(Lam, r)])
     lam = np.concatenate([zt[t.nq:], np.zeros(model.rod.nlam)])
     sim.state = State(0, 0.0, q, np.zeros_like(st.p), lam, np.zeros_like(st.v), data=st.data)
-    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
-    try:
-        w.append(0.0, sim.monitors(), sim.fields(), sim.state)
-        w.f.attrs["static"] = True
-        w.f.attrs["load_steps"] = info.get("load_steps", 0)
-    finally:
-        w.close()
+    _write_static(out, scene, sim, info.get("load_steps", 0))
     tip = r[-1]
     print(f"wrote {out}: static equilibrium of the coupled tube in {info.get('iterations', '?')} Newton iterations; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
