@@ -205,7 +205,7 @@ def coupled_static(model, steps=4, tol=1e-10, max_iter=40):
 
     import scipy.sparse.linalg as spla
 
-    from .lie import cay
+    from .rod_statics import _retract, load_continuation
 
     _refuse(model)
     t, rod = model.tube, model.rod
@@ -216,42 +216,26 @@ def coupled_static(model, steps=4, tol=1e-10, max_iter=40):
     mu_idx = names == "mu"
     mask = rod.mask
     start = initial_configuration(model)
-    n_steps = steps
-    while True:
-        Lam, r, zt = (x.copy() for x in start)
-        ok, iters = True, 0
-        for k in range(1, n_steps + 1):
-            lf = k / n_steps
-            for _ in range(max_iter):
-                f, K = _force_and_stiffness(model, Lam, r, zt, lf, exact_rod=True)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", spla.MatrixRankWarning)
-                    dz = spla.spsolve(K.tocsc(), f)
-                if not np.all(np.isfinite(dz)):
-                    ok = False
-                    break
-                u = np.zeros(mask.shape)
-                u[mask] = dz[model.rod_z]
-                Lam, r = Lam @ cay(u[:, 3:]), r + u[:, :3]
-                zt = zt + dz[model.tube_z]
-                if t.label_problem(t.config(zt)) is not None:
-                    ok = False
-                    break
-                iters += 1
-                scale = unit.copy()
-                if np.any(mu_idx):
-                    scale[mu_idx] = max(float(np.max(np.abs(zt[t.layout["mu"]]))), t.p_ext, 1.0)
-                if np.max(np.abs(dz) / scale) < tol:
-                    break
-            else:
-                ok = False
-            if not ok:
-                break
-        if ok:
-            return (Lam, r, zt), {"load_steps": n_steps, "iterations": iters}
-        if n_steps >= 256:
-            raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
-        n_steps *= 2
+
+    def newton_step(state, lf):
+        Lam, r, zt = state
+        f, K = _force_and_stiffness(model, Lam, r, zt, lf, exact_rod=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", spla.MatrixRankWarning)
+            dz = spla.spsolve(K.tocsc(), f)
+        if not np.all(np.isfinite(dz)):
+            return state, None
+        Lam, r = _retract(Lam, r, dz[model.rod_z], mask)
+        zt = zt + dz[model.tube_z]
+        if t.label_problem(t.config(zt)) is not None:
+            return state, None
+        scale = unit.copy()
+        if np.any(mu_idx):
+            scale[mu_idx] = max(float(np.max(np.abs(zt[t.layout["mu"]]))), t.p_ext, 1.0)
+        return (Lam, r, zt), bool(np.max(np.abs(dz) / scale) < tol)
+
+    state, n_steps, iters = load_continuation(lambda: tuple(x.copy() for x in start), newton_step, steps, max_iter)
+    return state, {"load_steps": n_steps, "iterations": iters}
 
 
 def _reduce(lin):

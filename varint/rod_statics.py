@@ -118,60 +118,76 @@ def static_equilibrium(model, steps=4, tol=1e-10, max_iter=30, spin=None):
     start = (model.Lam0.copy(), model.r0.copy())
     if spin is not None and model.free:
         start = turn_to_nearest_principal_axis(model, *start, spin)
+    def newton_step(state, lf):
+        """One Newton update at load factor ``lf``: (new state, converged), or (state, None) when singular."""
+        Lam, r, lam = state
+        spin_k = None if spin is None else math.sqrt(lf) * spin
+        g = _force_map(model, Lam, r, lf, spin_k, centre)(np.zeros(model.nz))[mask]
+        H = _force_jacobian(model, Lam, r, lf, spin_k, centre)
+        if spin is not None:
+            H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
+        if model.constrained:
+            # KKT of min U subject to Gamma = chi: the force balance with the constraint forces and
+            # the constraint itself, by Newton on the saddle matrix [[dF/dz, -ds G^T], [G, 0]]
+            from .rod_constraint import constraint_static
+
+            c, G, Fc, Hc = constraint_static(model, Lam, r, lam)
+            K = sp.bmat([[H + Hc, -model.ds * G.T], [G, None]]).tocsc()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", spla.MatrixRankWarning)
+                d = -spla.spsolve(K, np.concatenate([g + Fc, c]))
+            dz = d[:model.nz]
+            if np.all(np.isfinite(d)):
+                lam = lam.copy()
+                lam[:, :model.ncomp] += d[model.nz:].reshape(model.N, model.ncomp)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", spla.MatrixRankWarning)  # singular: dz is not finite, handled below
+                dz = -spla.spsolve(H.tocsc(), g)
+        if not np.all(np.isfinite(dz)):
+            return state, None
+        Lam, r = _retract(Lam, r, dz, mask)
+        return (Lam, r, lam), bool(np.max(np.abs(dz) / scale) < tol)
+
+    # lam: the inextensible rod's element forces (docs/theory.md §9a)
+    (Lam, r, lam), n_steps, iters = load_continuation(lambda: (start[0].copy(), start[1].copy(), np.zeros((model.N, 3))),
+                                                      newton_step, steps, max_iter)
+    info = {"load_steps": n_steps, "iterations": iters}
+    if model.constrained:
+        info["element_forces"] = lam.copy()
+    if spin is not None:
+        # a spin about no principal axis has no steady rotation near the given shape: the rod
+        # was turned as a whole to one that has (reported, since it changes the scene)
+        c0, c1 = model.r0[-1] - model.r0[0], r[-1] - r[0]
+        cosang = np.dot(c0, c1) / (np.linalg.norm(c0) * np.linalg.norm(c1))
+        info["turned_deg"] = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
+    return Lam, r, info
+
+
+def load_continuation(start, newton_step, steps=4, max_iter=30):
+    """Load continuation shared by the statics (the rod's, the coupled tube's): the load applied in ``steps``
+    equal increments, each solved by repeated ``newton_step(state, load_factor) -> (state, converged)``
+    (``converged`` None: a singular or non-finite update), from ``start()``; the number of increments is
+    doubled until every one converges.  Returns (state, increments, Newton iterations)."""
     n_steps = steps
     while True:
-        Lam, r = start[0].copy(), start[1].copy()
-        lam = np.zeros((model.N, 3))  # the inextensible rod's element forces (docs/theory.md §9a)
-        ok, iters = True, 0
+        state, ok, iters = start(), True, 0
         for k in range(1, n_steps + 1):
             lf = k / n_steps
-            spin_k = None if spin is None else math.sqrt(lf) * spin
             for _ in range(max_iter):
-                f = _force_map(model, Lam, r, lf, spin_k, centre)
-                z0 = np.zeros(model.nz)
-                g = f(z0)[mask]
-                H = _force_jacobian(model, Lam, r, lf, spin_k, centre)
-                if spin is not None:
-                    H = H + sp.diags(1e-10 * np.max(np.abs(H.diagonal())) * np.ones(model.nz))
-                if model.constrained:
-                    # KKT of min U subject to Gamma = chi: the force balance with the constraint forces and
-                    # the constraint itself, by Newton on the saddle matrix [[dF/dz, -ds G^T], [G, 0]]
-                    from .rod_constraint import constraint_static
-
-                    c, G, Fc, Hc = constraint_static(model, Lam, r, lam)
-                    K = sp.bmat([[H + Hc, -model.ds * G.T], [G, None]]).tocsc()
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore", spla.MatrixRankWarning)
-                        d = -spla.spsolve(K, np.concatenate([g + Fc, c]))
-                    dz = d[:model.nz]
-                    if np.all(np.isfinite(d)):
-                        lam[:, :model.ncomp] += d[model.nz:].reshape(model.N, model.ncomp)
-                else:
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore", spla.MatrixRankWarning)  # singular: dz is not finite, handled below
-                        dz = -spla.spsolve(H.tocsc(), g)
-                if not np.all(np.isfinite(dz)):
+                state, done = newton_step(state, lf)
+                if done is None:
                     ok = False
                     break
-                Lam, r = _retract(Lam, r, dz, mask)
                 iters += 1
-                if np.max(np.abs(dz) / scale) < tol:
+                if done:
                     break
             else:
                 ok = False
             if not ok:
                 break
         if ok:
-            info = {"load_steps": n_steps, "iterations": iters}
-            if model.constrained:
-                info["element_forces"] = lam.copy()
-            if spin is not None:
-                # a spin about no principal axis has no steady rotation near the given shape: the rod
-                # was turned as a whole to one that has (reported, since it changes the scene)
-                c0, c1 = model.r0[-1] - model.r0[0], r[-1] - r[0]
-                cosang = np.dot(c0, c1) / (np.linalg.norm(c0) * np.linalg.norm(c1))
-                info["turned_deg"] = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
-            return Lam, r, info
+            return state, n_steps, iters
         if n_steps >= 256:
             raise SolverError("static equilibrium: Newton did not converge even with 256 load steps")
         n_steps *= 2
