@@ -103,6 +103,13 @@ SCHEMA = MappingProxyType({
     "fluid.ends": (
         Key("s0", "str", "closed", "", "end s = 0", choices=("closed", "periodic", "inflow")),
         Key("sL", "str", "closed", "", "end s = L", choices=("closed", "periodic", "outflow")),
+        Key("inflow", "str", "velocity", "", "open ends: what the inlet at s = 0 prescribes (velocity: a piston pushing parcels "
+            "in at inflow_velocity; pressure: inflow_pressure acting on the last parcel entering), docs/theory.md §13",
+            choices=("velocity", "pressure")),
+        Key("inflow_velocity", "float", None, "m/s", "open ends: velocity of the entering fluid (default fluid.velocity)", low=0.0, low_open=True),
+        Key("inflow_density", "float", None, "kg/m^3", "open ends: density of the entering fluid (default fluid.density)", low=0.0, low_open=True),
+        Key("inflow_pressure", "float", None, "Pa", "open ends: pressure of the entering fluid (default fluid.pressure; a gas's entropy follows from it and inflow_density)"),
+        Key("outflow_pressure", "float", None, "Pa", "open ends: pressure at the outlet s = L (default environment.external_pressure: a free jet)"),
     ),
     "fluid.initial[]": (
         Key("from", "float", REQUIRED, "m", "start of the region"),
@@ -459,6 +466,10 @@ class _Validator:
             env["external_pressure"] = sc.fluid.pressure if (sc.fluid is not None and sc.fluid.pressure is not None) else 0.0
         if sc.fluid is not None and sc.fluid.model == "incompressible" and sc.fluid.pressure is None:
             sc.fluid["pressure"] = env.external_pressure
+        if sc.fluid is not None and sc.fluid.ends.sL == "outflow":  # open ends: the defaults that need the environment
+            ends = sc.fluid.ends
+            ends["outflow_pressure"] = env.external_pressure if ends.outflow_pressure is None else ends.outflow_pressure
+            ends["inflow_pressure"] = sc.fluid.pressure if ends.inflow_pressure is None else ends.inflow_pressure
         if sc.output.fields is not None and sc.rod is None:
             valid = [g for g, on in (("fluid", sc.fluid is not None), ("wall", sc.wall is not None)) if on]
             for f in sc.output.fields:
@@ -646,16 +657,14 @@ class _Validator:
                 self.bad("fluid.pressure", f"missing (required for model = '{model}')")
             elif f.pressure <= 0 and model == "ideal-gas":
                 self.bad("fluid.pressure", f"must be > 0 for an ideal gas, got {f.pressure:g}")
-        if model == "incompressible" and sc.wall is None and sc.rod is None:
+        if model == "incompressible" and sc.wall is None and sc.rod is None and f.ends.s0 != "inflow":
             self.bad("fluid.model", "an incompressible fluid in a rigid straight tube cannot move (every parcel volume is "
                      "fixed); add a [wall] or a [rod]")
         if model != "barotropic" and f.bulk_modulus is not None:
             self.bad("fluid.bulk_modulus", f"not used by model = '{model}'; remove it")
         e0, e1 = f.ends.s0, f.ends.sL
-        if e0 == "inflow" or e1 == "outflow":
-            which = "fluid.ends.s0" if e0 == "inflow" else "fluid.ends.sL"
-            self.bad(which, "open ends (inflow/outflow) are not available in this version; use 'closed' or 'periodic'")
-        elif (e0 == "periodic") != (e1 == "periodic"):
+        self.open_end_checks(f, sc)
+        if (e0 == "periodic") != (e1 == "periodic"):
             self.bad("fluid.ends", "periodic must be set at both ends (s0 and sL)")
         for i, r in enumerate(f.initial):
             kp = f"fluid.initial[{i}]"
@@ -668,6 +677,39 @@ class _Validator:
         allowed = ("velocity",) if model == "incompressible" else ("pressure", "density", "velocity")
         for i, p in enumerate(f.perturbation):
             self.shape_checks(p, f"fluid.perturbation[{i}]", L, allowed=allowed)
+
+    def open_end_checks(self, f, sc):
+        """``fluid.ends = { s0 = "inflow", sL = "outflow" }`` (docs/theory.md §13): both ends open or neither; the
+        inlet's state defaults to the scene's fluid.velocity / density / pressure, the outlet's pressure to the
+        external pressure (a free jet)."""
+        e = f.ends
+        opened = e.s0 == "inflow" or e.sL == "outflow"
+        inlet_keys = ("inflow_velocity", "inflow_density", "inflow_pressure", "outflow_pressure")
+        if not opened:
+            for k in inlet_keys:
+                if e[k] is not None:
+                    self.bad(f"fluid.ends.{k}", "only for open ends (s0 = 'inflow', sL = 'outflow')")
+            if e.inflow != "velocity":
+                self.bad("fluid.ends.inflow", "only for open ends (s0 = 'inflow', sL = 'outflow')")
+            return
+        if e.s0 != "inflow" or e.sL != "outflow":
+            self.bad("fluid.ends", "open ends come in a pair in this version: s0 = 'inflow' and sL = 'outflow'")
+            return
+        if f.initial:
+            self.bad("fluid.initial", "an open tube starts from the steady flow of the inlet's state; remove fluid.initial")
+        velocity_key = "fluid.ends.inflow_velocity" if e.inflow_velocity is not None else "fluid.velocity"
+        if e.inflow_velocity is None:
+            e["inflow_velocity"] = f.velocity
+        if e.inflow_density is None:
+            e["inflow_density"] = f.density
+        if e.inflow_pressure is None:
+            e["inflow_pressure"] = f.pressure
+        if e.inflow == "velocity" and not e.inflow_velocity > 0.0:
+            self.bad(velocity_key, f"a velocity inlet needs fluid flowing in (> 0), got {e.inflow_velocity:g} m/s")
+        if f.model == "incompressible" and e.inflow_density != f.density:
+            self.bad("fluid.ends.inflow_density", "an incompressible fluid has one density: remove it")
+        if f.model == "ideal-gas" and e.inflow_pressure is not None and e.inflow_pressure <= 0.0:
+            self.bad("fluid.ends.inflow_pressure", f"must be > 0 for an ideal gas, got {e.inflow_pressure:g}")
 
     def shape_checks(self, p, kp, L, allowed):
         if p.field not in allowed:

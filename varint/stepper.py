@@ -242,6 +242,9 @@ class Simulation:
 
     def __init__(self, model, h=None, scheme=None, tol=None, max_iter=None, state=None):
         tcfg = model.scene.time
+        if model.tube is not None and model.tube.open_ends:
+            raise SolverError("fluid.ends: time integration with open ends (inflow/outflow) is not available in this "
+                              "version; `varint modes` linearises a flowing tube on a [rod]")
         self.model = model
         self.h = float(h if h is not None else tcfg.step)
         self.scheme = make_scheme(model, self.h, scheme)

@@ -78,6 +78,8 @@ class TubePart:
         self.has_wall = scene.wall is not None
         self.has_fluid = scene.fluid is not None
         self.periodic = self.has_fluid and scene.fluid.ends.s0 == "periodic"
+        #: fluid.ends = { s0 = "inflow", sL = "outflow" } (docs/theory.md §13)
+        self.open_ends = self.has_fluid and scene.fluid.ends.s0 == "inflow"
         self.nR = self.N if self.periodic else self.N + 1
         self.wall_dynamic = self.has_wall and scene.wall.model == "dynamic"
         self.incompressible = self.has_fluid and scene.fluid.model == "incompressible"
