@@ -152,8 +152,12 @@ def cmd_modes(args):
         print(f"varint: note: {d['note']}", file=sys.stderr)
     res, frame = d["modes"], d.get("frame")
     if args.json:
-        print(json.dumps(_jsonable({k: d[k] for k in ("modes", "about", "note", "frame") if k in d})))
+        print(json.dumps(_jsonable({k: d[k] for k in ("modes", "about", "note", "frame", "flow") if k in d})))
     else:
+        if "flow" in d:
+            fl = d["flow"]
+            print(f"# tube conveying fluid at U = {fl['U']:.6g} m/s: u = {fl['u']:.6g}, beta = {fl['beta']:.6g}, "
+                  f"gamma = {fl['gamma']:.6g} (Païdoussis); growth rate < 0: the mode decays")
         if frame is not None:
             print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
         for i, m in enumerate(res):

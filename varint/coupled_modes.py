@@ -29,8 +29,9 @@ rates, in the format of ``varint.analysis.modes``.
 
 Statics (:func:`coupled_static`) is Newton on the zero of the generalised force -dU/dz with the same K (the
 saddle matrix, multipliers and quasistatic radii included) and load continuation, as varint/rod_statics.py
-does for the rod alone.  Not covered: spinning or moving initial states (steady rotations), a flowing fluid
-(its gyroscopic terms), periodic fluid ends, the inextensible rod: each refused in one line.
+does for the rod alone.  Not covered: spinning or moving initial states (steady rotations), a flowing fluid in a
+closed tube, periodic fluid ends, the inextensible rod: each refused in one line.  A tube with open ends (a tube
+conveying fluid, its gyroscopic and follower terms) is varint/flowing_modes.py's.
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ DENSE_COUPLED_LIMIT = 1000
 def _refuse(model):
     """One-line errors for the states this linearisation is not about (before any matrix is built)."""
     t, rod = model.tube, model.rod
+    if t.open_ends:
+        raise SolverError("modes: a tube with open fluid.ends (inflow/outflow) is linearised about its steady flow by "
+                          "varint.flowing_modes (varint modes does so), not about a state at rest")
     if rod.constrained:
         raise SolverError("modes: the coupled tube with rod.constraint = \"inextensible_unshearable\" is not available "
                           "(the constrained rod's modes need its multipliers in the eigenproblem)")
@@ -60,8 +64,9 @@ def _refuse(model):
         raise SolverError("modes: the coupled tube is linearised about its initial state at rest: "
                           "rod.initial.velocity and rod.initial.angular_velocity must be zero")
     if np.any(t.v_init[t.layout["s"]] != 0.0):
-        raise SolverError("modes: the coupled tube is linearised about its initial state at rest: the fluid must not "
-                          "flow (fluid.velocity = 0); modes of a flowing tube are not available in this version")
+        raise SolverError("modes: a closed coupled tube is linearised about its initial state at rest: the fluid must not "
+                          "flow (fluid.velocity = 0); for the modes of a tube conveying fluid open its ends, "
+                          "fluid.ends = { s0 = \"inflow\", sL = \"outflow\" } (docs/theory.md §13.6)")
     if t.wall_dynamic and np.any(t.v_init[t.layout["R"]] != 0.0):
         raise SolverError("modes: the coupled tube is linearised about its initial state at rest: the wall must not move")
 

@@ -31,7 +31,8 @@ def scene_modes(scene, count=20, about="initial", source=None):
     """The ``count`` lowest modes of ``scene``.
 
     Returns ``{"modes": [{"frequency": rad/s, "growth_rate": 1/s}, ...], "about": about}`` with, when
-    they apply, ``"note"`` (modes about an unloaded state of a loaded rod), ``"frame"`` (a spinning rod:
+    they apply, ``"flow"`` (a tube conveying fluid, varint/flowing_modes.py: its U and Païdoussis' u, beta,
+    gamma; growth rates there are signed, negative for a decaying mode), ``"note"`` (modes about an unloaded state of a loaded rod), ``"frame"`` (a spinning rod:
     the frequencies are seen from the spinning frame) and ``"remark"`` (a steady rotation that turned
     the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`VarintError`.
     """
@@ -44,6 +45,21 @@ def scene_modes(scene, count=20, about="initial", source=None):
     source = source if source is not None else (scene.path or "scene")
     model = build_model(scene)
     d = {"about": about}
+    if model.coupled and model.tube.open_ends:
+        # docs/theory.md §13.6: a tube conveying fluid, linearised about its steady flow (straight, or the steady
+        # state under gravity with --about static)
+        from .flowing_modes import first_order_modes, flowing_linearization
+
+        lin = flowing_linearization(model, about)
+        d["modes"] = first_order_modes(lin["K"], lin["C"], lin["M"], count)
+        par = lin["parameters"]
+        d["flow"] = {k: float(par[k]) for k in ("U", "u", "beta", "gamma")}
+        if about == "initial" and lin["unbalanced"] > 1e-9:
+            why = ", ".join(_loads(model.rod)) or "the steady flow's centrifugal load on a curved tube"
+            d["note"] = (f"{source} is not in equilibrium in its initial state ({why}; unbalanced force "
+                         f"{lin['unbalanced']:.2g} of a unit strain's): these modes are about the initial state, "
+                         "not the steady state; use --about static for that")
+        return d
     if model.coupled:
         # docs/theory.md §10.10: the coupled tube's kinetic metric and potential Hessian about its initial state
         from .coupled_modes import coupled_linearization, coupled_static, modes_of_linearization
@@ -88,7 +104,8 @@ def scene_modes(scene, count=20, about="initial", source=None):
 def strongest(res):
     """The summary of a modes list that a sweep tabulates.
 
-    ``growth_rate``: the largest growth rate (0 when no mode grows); ``lowest_frequency``: the lowest
+    ``growth_rate``: the largest growth rate (0 when no mode grows; negative when every mode decays, as a
+    tube conveying fluid below its flutter threshold); ``lowest_frequency``: the lowest
     frequency of the modes that do not grow, rigid-body motions (frequency 0, or below 1e-6 of the
     highest listed) left out (NaN when there is none); ``frequency``: the frequency of the fastest
     growing mode, or, when no mode grows, ``lowest_frequency``.
@@ -96,7 +113,7 @@ def strongest(res):
     nan = float("nan")
     grow = max((m["growth_rate"] for m in res), default=nan)
     top = max((m["frequency"] for m in res), default=0.0)
-    elastic = [m["frequency"] for m in res if m["growth_rate"] == 0.0 and m["frequency"] > 1e-6 * top]
+    elastic = [m["frequency"] for m in res if m["growth_rate"] <= 0.0 and m["frequency"] > 1e-6 * top]
     lowest = float(min(elastic)) if elastic else nan
     if grow > 0.0:
         freq = next(m["frequency"] for m in res if m["growth_rate"] == grow)

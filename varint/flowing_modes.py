@@ -1,0 +1,293 @@
+"""Linear modes of a tube conveying fluid: the coupled tube with open ends (``fluid.ends = { s0 = "inflow",
+sL = "outflow" }``) linearised about its steady flow (docs/theory.md §13.6).
+
+The scene is a [rod] + [fluid] tube with a rigid wall (no [wall]) and an incompressible liquid entering at s = 0
+through a velocity inlet at U = ``fluid.ends.inflow_velocity`` (default ``fluid.velocity``) and leaving at s = L as
+a free jet.  The liquid's plug speed along the tube is then fixed by the inlet, so the unknowns are the rod's only
+(its (dr, sigma) on the support mask, as varint/rod_statics.py).  The liquid's kinetic energy is the continuum
+limit of the coupled model's label sum, evaluated with the Catmull-Rom weights N_i(s) of docs/theory.md §10.2
+(X(s; r) = sum_i N_i(s) r_i):
+
+    K_f = 1/2 int M |rdot(s) + U r'(s)|^2 ds
+        = 1/2 rdot^T Mf rdot + U rdot^T G0 r + 1/2 U^2 r^T KU r,
+    Mf = M int N N^T,  G0 = M int N N'^T,  KU = M int N' N'^T       (each (x) I_3 on the nodal positions),
+
+with M = rho_f A the liquid's mass per length.  With the open system's momentum fluxes (McIver 1973; Benjamin
+1961): -M U (rdot + U r')(L) . dr(L) of the jet leaving and +M U (rdot + U r')(0) . dr(0) of the fluid entering,
+the linear equations are
+
+    (M_rod + Mf) qddot + 2 U C1 qdot + (K_rod + U^2 S) q = 0,     C1 = M int N N'^T,  S = M int N N''^T,
+
+the weak (Galerkin) form of  (m + M) wddot + 2 M U wdot' + M U^2 w'' + EI w'''' = 0  with the free end's
+w'' = w''' = 0 (Païdoussis, *Fluid-Structure Interactions* vol. 1, eq. 3.70): the flux terms cancel the boundary
+terms of the Lagrangian's integrations by parts (G0 - G0^T + M [N N^T]_0^L = 2 C1, -KU + M [N N'^T]_0^L = S).
+Supported ends remove their rows (a pinned outlet has no transverse follower force).  At the straight state
+S r = 0 (Catmull-Rom is exact on straight lines), so the straight flowing tube is an equilibrium with no base
+tension: the axial follower force -M U^2 t(L) balances the axial pull +M U^2 t(L) of the centrifugal term.
+
+Base state: ``about="initial"``: the scene's (straight) initial state.  ``about="static"``: the steady state
+under gravity, Newton on the rod's generalised force plus the liquid's weight M g int N_i and the steady flow's
+force -U^2 S r (the centrifugal load of a bent steady state), with load continuation; the rod's internal force
+there is the effective axial force T - pA of the flowing pipe (docs/theory.md §13.6), whose geometric stiffness
+K_rod contains.  The modes are the eigenvalues s of the quadratic pencil, from its first-order generalised form
+by dense shift-invert (the lowest eigenvalues accurate whatever the stiff axial and shear ones), reported as
+``{"frequency": Im s >= 0, "growth_rate": Re s}`` (negative: decaying); a complex pair is reported once, each real
+eigenvalue on its own.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from .errors import SolverError
+
+__all__ = ["flow_matrices", "flowing_linearization", "flowing_modes", "flowing_static", "pipe_parameters",
+           "first_order_modes", "refuse_flowing", "threshold"]
+
+#: Gauss-Legendre points per element: N is cubic, so N N^T (degree 6) is integrated exactly by 4
+_GAUSS = 4
+
+
+def refuse_flowing(model):
+    """One-line errors for what this linearisation does not cover (before any matrix is built)."""
+    sc = model.scene
+    t, rod = model.tube, model.rod
+    ends = sc.fluid.ends
+    if not t.incompressible:
+        raise SolverError(f"modes: a flowing {sc.fluid.model} is not available (fluid.model): the modes of a tube "
+                          "conveying fluid are for an incompressible liquid")
+    if t.has_wall:
+        raise SolverError("modes: a flowing tube with a [wall] is not available: the modes of a tube conveying fluid are "
+                          "for a rigid wall (remove [wall])")
+    if sc.tube.area_table is not None:
+        raise SolverError("tube.area_table: a flowing tube needs a uniform section (the flow speed would vary along it)")
+    if ends.inflow != "velocity":
+        raise SolverError("fluid.ends.inflow: the modes of a flowing tube need a velocity inlet (\"velocity\"), which "
+                          "fixes the liquid's speed")
+    if ends.outflow_pressure != sc.environment.external_pressure:
+        raise SolverError(f"fluid.ends.outflow_pressure: the modes of a flowing tube are for a free jet at the external "
+                          f"pressure ({sc.environment.external_pressure:g} Pa), got {ends.outflow_pressure:g} Pa")
+    if rod.constrained:
+        raise SolverError("modes: a flowing tube with rod.constraint = \"inextensible_unshearable\" is not available "
+                          "(use a stiff axial and shear stiffness instead)")
+    if rod.periodic:
+        raise SolverError("modes: a flowing tube with periodic rod ends is not available")
+    if np.any(rod.spin) or np.any(rod.velocity):
+        raise SolverError("modes: a flowing tube is linearised about its steady flow: rod.initial.velocity and "
+                          "rod.initial.angular_velocity must be zero")
+    if rod.free:
+        raise SolverError("modes: a flowing tube with both rod.ends free has no steady state to linearise about; clamp "
+                          "or pin an end")
+
+
+def pipe_parameters(model):
+    """The pipe's classical data: ``U`` (m/s), ``M`` (liquid kg/m), ``m`` (rod kg/m), ``EI``, ``L``, ``g`` (the
+    gravity component along the undeformed tube from s = 0 to s = L, m/s^2) and Païdoussis' dimensionless
+    ``u`` = U L sqrt(M/EI), ``beta`` = M/(M+m), ``gamma`` = (M+m) g L^3/EI (> 0 hanging)."""
+    sc, t, rod = model.scene, model.tube, model.rod
+    U = float(sc.fluid.ends.inflow_velocity)
+    M = float(np.sum(t.label_mass_all)) / t.L
+    m, EI, L = rod.section.rhoA, rod.section.EI, rod.L
+    axis = rod.r0[-1] - rod.r0[0]
+    g_along = float(np.dot(rod.g, axis / np.linalg.norm(axis)))
+    return {"U": U, "M": M, "m": m, "EI": EI, "L": L, "g": g_along, "u": U * L * np.sqrt(M / EI),
+            "beta": M / (M + m), "gamma": (M + m) * g_along * L ** 3 / EI}
+
+
+def flow_matrices(n_nodes, ds, M=1.0):
+    """(Mf, C1, S, W): M int N_i N_j, M int N_i N_j', M int N_i N_j'' and M int N_i over [0, L] for the
+    Catmull-Rom weights of varint/coupled_geometry.py (closed ends: quadratic-extrapolation ghosts), exactly
+    (4 Gauss points per element); dense (n_nodes, n_nodes) and (n_nodes,)."""
+    from .coupled_geometry import centreline_weights
+
+    x, w = np.polynomial.legendre.leggauss(_GAUSS)
+    n_el = n_nodes - 1
+    s = ((np.arange(n_el)[:, None] + 0.5 * (x[None, :] + 1.0)) * ds).ravel()
+    wq = np.tile(0.5 * ds * w, n_el)
+    nodes, N, dN, d2N = centreline_weights(s, n_nodes, ds)
+    # dense weight matrices (points x nodes): a node may appear twice in a row (folded ghosts), so add
+    rows = np.repeat(np.arange(len(s)), 4)
+    P = [sp.csr_matrix((a.ravel(), (rows, nodes.ravel())), shape=(len(s), n_nodes)).toarray() for a in (N, dN, d2N)]
+    Nq, dNq, d2Nq = P
+    Mf = M * (Nq * wq[:, None]).T @ Nq
+    C1 = M * (Nq * wq[:, None]).T @ dNq
+    S = M * (Nq * wq[:, None]).T @ d2Nq
+    W = M * Nq.T @ wq
+    return Mf, C1, S, W
+
+
+def _on_rod(A, rod):
+    """A node matrix (n_nodes^2) (x) I_3 on the translations, restricted to the rod's support mask (nz x nz)."""
+    n = rod.N + 1
+    E = np.zeros((6, 6))
+    E[:3, :3] = np.eye(3)
+    big = sp.kron(sp.csr_matrix(A), sp.csr_matrix(E)).tocsr()
+    idx = np.flatnonzero(rod.mask.ravel())
+    return big[idx][:, idx].toarray() if n else None
+
+
+def _flow_force(rod, r, S, W, g, U, lf=1.0):
+    """The liquid's generalised force on the rod's (dr, sigma) (N+1, 6): its weight lf M g int N_i and the steady
+    flow's -lf U^2 (S r)_i."""
+    f = np.zeros((rod.N + 1, 6))
+    f[:, :3] = lf * (W[:, None] * g[None, :] - U * U * (S @ r))
+    return f
+
+
+def flowing_static(model, steps=4, tol=1e-10, max_iter=40, velocity=None):
+    """The steady state of the flowing tube under gravity: Newton on rod force + liquid weight + steady flow force
+    = 0 in the rod's chart (Lambda cay(sigma), r + dr), with load continuation in gravity and U^2 together
+    (varint/rod_statics.py ``load_continuation``); ``velocity`` overrides the inlet's U.  Returns
+    ((Lambda, r), info)."""
+    import warnings
+
+    import scipy.sparse.linalg as spla
+
+    from .rod_statics import _force_jacobian, _potential_gradient, _retract, load_continuation
+
+    refuse_flowing(model)
+    rod = model.rod
+    par = pipe_parameters(model)
+    _, _, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
+    U = par["U"] if velocity is None else float(velocity)
+    g, mask = np.asarray(rod.g, dtype=float), rod.mask
+    Sz = sp.csr_matrix(_on_rod(S, rod))
+    scale = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, rod.ds, 1.0)
+
+    def newton_step(state, lf):
+        Lam, r = state
+        f = (_potential_gradient(rod, Lam, r, lf) + _flow_force(rod, r, S, W, g, U, lf))[mask]
+        J = _force_jacobian(rod, Lam, r, lf) - lf * U * U * Sz
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", spla.MatrixRankWarning)
+            dz = -spla.spsolve(sp.csc_matrix(J), f)
+        if not np.all(np.isfinite(dz)):
+            return state, None
+        return _retract(Lam, r, dz, mask), bool(np.max(np.abs(dz) / scale) < tol)
+
+    state, n_steps, iters = load_continuation(lambda: (rod.Lam0.copy(), rod.r0.copy()), newton_step, steps, max_iter)
+    return state, {"load_steps": n_steps, "iterations": iters}
+
+
+def flowing_linearization(model, about="initial", velocity=None):
+    """Mass, damping (gyroscopic + the flux terms) and stiffness of the flowing tube in the rod's unknowns.
+
+    ``velocity``: the flow speed U (m/s) in place of the scene's inlet velocity (0 allowed: the tube full of
+    liquid at rest, whose lateral inertia is the same M per length).
+    Returns a dict: ``M``, ``C``, ``K`` (dense nz x nz; K non-symmetric), ``Lam``, ``r`` (the base state),
+    ``parameters`` (:func:`pipe_parameters`) and ``unbalanced`` (the generalised force at the base state over the
+    elastic force of a unit strain: ~0 at an equilibrium).
+    """
+    from .rod_statics import _force_jacobian, _potential_gradient, lumped_mass
+
+    refuse_flowing(model)
+    rod = model.rod
+    par = pipe_parameters(model)
+    if velocity is not None:
+        par = dict(par, U=float(velocity), u=float(velocity) * par["L"] * np.sqrt(par["M"] / par["EI"]))
+    if about == "static":
+        (Lam, r), _ = flowing_static(model, velocity=par["U"])
+    else:
+        Lam, r = rod.Lam0, rod.r0
+    U = par["U"]
+    Mf, C1, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
+    Kr = -_force_jacobian(rod, Lam, r).toarray()
+    Kr = 0.5 * (Kr + Kr.T)
+    Mz = np.diag(lumped_mass(rod)[rod.mask]) + _on_rod(Mf, rod)
+    C = 2.0 * U * _on_rod(C1, rod)
+    K = Kr + U * U * _on_rod(S, rod)
+    force = (_potential_gradient(rod, Lam, r) + _flow_force(rod, r, S, W, np.asarray(rod.g, dtype=float), U))[rod.mask]
+    unit = np.where(np.flatnonzero(rod.mask.ravel()) % 6 < 3, rod.ds, 1.0)
+    size = float(np.max(np.abs(np.diag(Kr)) * unit))
+    return {"M": 0.5 * (Mz + Mz.T), "C": C, "K": K, "Lam": Lam, "r": r, "parameters": par,
+            "unbalanced": float(np.max(np.abs(force))) / size if size > 0 else 0.0}
+
+
+def first_order_modes(K, C, M, count=20, vectors=False, shift=None):
+    """Eigenvalues s of (s^2 M + s C + K) x = 0 (any K, C; M symmetric positive semi-definite) as modes.
+
+    First-order form [[0, I], [-K, -C]] y = s [[I, 0], [0, M]] y, solved densely by shift-invert about
+    ``shift`` (default: -1e-3 of the smallest sqrt(K_ii/M_ii)): the eigenvalues mu of (A - shift B)^-1 B give
+    s = shift + 1/mu, so the lowest s carry the round-off of the lowest, not of the stiffest, modes; mu = 0 (an
+    infinite s of a massless unknown) is dropped.  Returns ``[{"frequency": Im s, "growth_rate": Re s}, ...]``:
+    one entry per complex-conjugate pair (Im s > 0) and one per real eigenvalue; parts below 1e-9 |s| are
+    round-off (0).  Sorted by frequency, then growth rate descending; ``count`` first.  With ``vectors`` the
+    complex displacement parts too.
+    """
+    n = K.shape[0]
+    if n == 0:
+        return ([], np.zeros((0, 0))) if vectors else []
+    if shift is None:
+        d = np.abs(np.diag(K)) / np.maximum(np.diag(M), 1e-300)
+        d = d[np.diag(M) > 0]
+        shift = -1e-3 * float(np.sqrt(np.min(d[d > 0]))) if np.any(d > 0) else -1.0
+    I = np.eye(n)
+    A = np.block([[np.zeros((n, n)), I], [-K, -C]])
+    B = np.block([[I, np.zeros((n, n))], [np.zeros((n, n)), M]])
+    T = sla.lu_solve(sla.lu_factor(A - shift * B), B)
+    mu, Y = sla.eig(T)
+    big = float(np.max(np.abs(mu)))
+    ok = np.abs(mu) > 1e-13 * big
+    s = shift + 1.0 / mu[ok]
+    Y = Y[:n, ok]
+    tiny = 1e-9 * np.abs(s)
+    re = np.where(np.abs(s.real) <= tiny, 0.0, s.real)
+    im = np.where(np.abs(s.imag) <= tiny, 0.0, s.imag)
+    keep = np.flatnonzero(im >= 0.0)
+    res = [{"frequency": float(im[i]), "growth_rate": float(re[i])} for i in keep]
+    order = sorted(range(len(res)), key=lambda k: (res[k]["frequency"], -res[k]["growth_rate"]))[:count]
+    out = [res[k] for k in order]
+    if vectors:
+        return out, Y[:, keep[order]]
+    return out
+
+
+def flowing_modes(model, count=20, about="initial", vectors=False):
+    """The ``count`` lowest modes of the flowing tube (see the module notes); :func:`flowing_linearization`."""
+    lin = flowing_linearization(model, about)
+    return first_order_modes(lin["K"], lin["C"], lin["M"], count, vectors)
+
+
+def threshold(text, lo, hi, key="fluid.velocity", count=20, about="initial", rtol=1e-6, max_iter=60):
+    """The value of the scene key ``key`` in [lo, hi] where the largest growth rate of the flowing tube's modes
+    crosses zero (stable at ``lo``, unstable at ``hi``), by bisection on the sign of that growth rate.
+
+    ``text``: the scene's TOML text (the key is set in it per point as ``varint sweep --vary`` does, and the point
+    revalidated).
+    Returns ``{"value", "lo", "hi", "frequency", "evaluations"}``: the bracket after convergence to ``rtol`` of
+    ``hi``, and the frequency of the growing mode at ``hi`` (0 for divergence).  A bracket with no sign change is
+    a one-line error.
+    """
+    from .modes_api import scene_modes, strongest
+
+    def at(v):
+        return strongest(scene_modes(_with_key(text, key, v), count=count, about=about, source=key)["modes"])
+
+    a, b = at(lo), at(hi)
+    if a["growth_rate"] > 0.0 or not b["growth_rate"] > 0.0:
+        raise SolverError(f"threshold: {key} in [{lo:g}, {hi:g}] does not bracket a loss of stability (largest growth "
+                          f"rate {a['growth_rate']:.3g} at {lo:g}, {b['growth_rate']:.3g} at {hi:g})")
+    n = 2
+    while hi - lo > rtol * abs(hi) and n < max_iter:
+        mid = 0.5 * (lo + hi)
+        c = at(mid)
+        n += 1
+        if c["growth_rate"] > 0.0:
+            hi, b = mid, c
+        else:
+            lo = mid
+    return {"value": 0.5 * (lo + hi), "lo": lo, "hi": hi, "frequency": b["frequency"], "evaluations": n}
+
+
+def _with_key(text, key, value):
+    """The validated scene of ``text`` with one dotted key set (varint.sweep's ``resolve_key`` and ``set_key``)."""
+    import tomllib
+
+    from .scene import parse_scene
+    from .sweep import resolve_key, set_key, to_toml
+
+    path, decl = resolve_key(key)
+    doc = set_key(tomllib.loads(text), path, int(value) if decl.kind == "int" else float(value))
+    return parse_scene(to_toml(doc))
