@@ -141,6 +141,8 @@ class Model:
         for part in (self.tube, self.rod):
             if part is not None and hasattr(part, "set_evolving_data"):
                 part.set_evolving_data(data)
+        if self.tube is not None and self.tube.open:
+            self._layout()  # open ends: the lattice (and with it the blocks' sizes) may have changed
 
     # -- initial state -------------------------------------------------------------------
 

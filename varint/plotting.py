@@ -106,6 +106,18 @@ def monitor_panels(mon):
     if records == 1:
         return _single_record_panels(mon)
     panels = []
+    if "energy_balance" in mon:  # open ends (docs/theory.md §13.4): the balances, not the conservation laws
+        scale = max(float(np.max(np.abs(mon["energy"]))), float(np.max(np.abs(mon["energy_flux"]))), 1e-300)
+        panels.append(Panel("energy balance (E - E0 - flux) / max(|E|, |flux|)", [("energy", mon["energy_balance"] / scale)],
+                            note=f"boundary energy flux at the end: {mon['energy_flux'][-1]:.3g} J"))
+        pscale = max(float(np.max(np.abs(mon["linear_momentum"]))), float(np.max(np.abs(mon["momentum_flux"]))), 1e-300)
+        panels.append(Panel("momentum balance (P - P0 - flux) / max(|P|, |flux|)",
+                            [("x", mon["momentum_balance"][:, 0] / pscale)]))
+        panels.append(Panel("mass balance (m - m0 - flux) / m0", [("mass", mon["mass_balance"] / abs(mon["mass"][0]))]))
+        panels.append(Panel("parcels in the tube", [("parcels", mon["parcels"])]))
+        if "newton_iterations" in mon:
+            panels.append(Panel("Newton iterations", [("per step", mon["newton_iterations"])], skip_first=True))
+        return panels
     if "energy" in mon:
         scale, what = energy_scale(mon)
         dE = mon["energy"] - mon["energy"][0]
@@ -167,6 +179,9 @@ def undisturbed(y0, zero_if_below=1e-6):
     ``zero_if_below`` times the field's range is the tails of a pulse on a state at rest, and is 0.
     """
     y0 = np.asarray(y0, dtype=float)
+    y0 = y0[np.isfinite(y0)]  # open ends: inactive slots are NaN (docs/output.md)
+    if not y0.size:
+        return 0.0
     med = float(np.median(y0))
     span = float(np.max(np.abs(y0 - med))) if y0.size else 0.0
     return 0.0 if abs(med) <= zero_if_below * span else med
@@ -177,7 +192,7 @@ def diverging_limits(y):
     state (:func:`undisturbed` of the first record), symmetric, wide enough for every value."""
     y = np.asarray(y, dtype=float)
     ref = undisturbed(y[0])
-    half = float(np.max(np.abs(y - ref))) if y.size else 0.0
+    half = float(np.nanmax(np.abs(y - ref))) if np.any(np.isfinite(y)) else 0.0
     return ref, (half if half > 0 else 1.0)
 
 
@@ -352,6 +367,14 @@ def _tube_maps(fld, scene):
     return maps
 
 
+def _interp_finite(xg, x, y):
+    """np.interp over the finite points of (x, y) (NaN where there are fewer than two)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if np.count_nonzero(ok) < 2:
+        return np.full(len(xg), np.nan)
+    return np.interp(xg, x[ok], y[ok], left=np.nan, right=np.nan)
+
+
 def _tube_figure(t, maps, title):
     from matplotlib.figure import Figure
 
@@ -370,13 +393,14 @@ def _tube_figure(t, maps, title):
         what = (f"{name}; undisturbed {sym}0 = 0" if ref == 0.0
                 else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = {t[0]:.3g} s)")
         if single:  # one record: the profile
-            ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if x.shape[1] <= 60 else None)
+            ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if np.count_nonzero(np.isfinite(x[0])) <= 60 else None)
             ax.axhline(0.0, color="0.5", lw=0.8)
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
         else:
-            xg = np.linspace(np.min(x[0]), np.max(x[0]), max(200, y.shape[1]))
-            img = np.array([np.interp(xg, xi, yi) for xi, yi in zip(x, dy)])
+            # open ends: inactive slots are NaN and the labels move through the tube: interpolate the active ones
+            xg = np.linspace(np.nanmin(x), np.nanmax(x), max(200, y.shape[1]))
+            img = np.array([_interp_finite(xg, xi, yi) for xi, yi in zip(x, dy)])
             vmax = f * half
             im = ax.pcolormesh(xg, t * tf, img, shading="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax)
             fig.colorbar(im, ax=ax, label=lab)

@@ -237,15 +237,35 @@ class StepStats:
     fallbacks: int = 0  #: steps that needed the damped-Newton fallback
 
 
+def _refuse_open(model, scheme):
+    """What open ends cannot run with yet, in one line each (docs/theory.md §13.7)."""
+    t, sc = model.tube, model.scene
+    if model.rod is not None:
+        raise SolverError("fluid.ends: time integration of open ends on a [rod] (the coupled tube) is not available in "
+                          "this version; the straight tube (no [rod]) runs, and `varint modes` linearises the flowing tube")
+    if t.has_wall:
+        raise SolverError("fluid.ends: open ends with a [wall] are not available in this version; the rigid tube "
+                          "(no [wall]: uniform, or tube.area_table) runs")
+    if t.gx != 0.0:
+        raise SolverError("environment.gravity: gravity along a tube with open ends is not available in this version")
+    if getattr(sc, "shock_capturing", None) is not None:
+        raise SolverError("shock_capturing: not available with open ends in this version")
+    if (scheme or sc.time.scheme) != "midpoint":
+        raise SolverError("time.scheme: open ends need 'midpoint' (the piston's position is taken at the step's midpoint)")
+    if t.inflow == "velocity" and t.U_in * sc.time.step > 0.5 * t.ell_in:
+        raise SolverError(f"time.step: the inflow moves {t.U_in * sc.time.step:.3g} m per step, more than half an inflow "
+                          f"parcel ({0.5 * t.ell_in:.3g} m); reduce time.step or fluid.parcels")
+
+
 class Simulation:
     """Public step API: ``sim.step()`` advances one time step; ``sim.state`` is the current level."""
 
     def __init__(self, model, h=None, scheme=None, tol=None, max_iter=None, state=None):
         tcfg = model.scene.time
         if model.tube is not None and model.tube.open_ends:
-            raise SolverError("fluid.ends: time integration with open ends (inflow/outflow) is not available in this "
-                              "version; `varint modes` linearises a flowing tube on a [rod]")
+            _refuse_open(model, scheme)
         self.model = model
+        self._built_version = None  # open ends: the lattice version the step was built for
         self.h = float(h if h is not None else tcfg.step)
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
@@ -253,6 +273,8 @@ class Simulation:
         if state is None and model.initial_data:
             model.set_state_data(model.initial_data)  # a rerun of the model starts from t = 0's data, not a heated run's
         self.state = state if state is not None else State(0, 0.0, *model.initial_state(self.h), data=model.state_data())
+        if self.open and state is None:
+            self._open_start()
         self.stats = StepStats()
         self._factor = None
         self.scale, self.offset = self._scales()
@@ -276,6 +298,14 @@ class Simulation:
         if st.data:
             self.model.set_state_data(st.data)
         self._state = st
+        if self.open and self.model.tube.lattice_version != self._built_version:
+            self._rebuild()
+
+    @property
+    def open(self):
+        """True for the straight tube with open ends (docs/theory.md §13)."""
+        t = self.model.tube
+        return t is not None and getattr(t, "open", False)
 
     def _scales(self):
         """Scale of each unknown (Newton's error norm) and the size of the quantity it displaces (the
@@ -287,13 +317,16 @@ class Simulation:
         if t is not None:
             for name, sl in t.layout.items():
                 if name == "s":
-                    sc[sl] = t.L / t.M
+                    sc[sl] = t.ell_in if t.open else t.L / t.M
                 elif name == "R":
                     sc[sl] = t.R0
                 elif name == "mu":
                     # the multiplier is a pressure; its round-off is set by the wall's stiffness (or, in a rigid
                     # tube on a rod, by the rod's axial stiffness per area: the liquid's volume fixes its stretch)
                     w = t.wall
+                    if t.open:  # the rigid open tube: the end pressures and the inflow's dynamic pressure
+                        sc[sl] = max(abs(m.scene.fluid.pressure), abs(t.p_in), abs(t.p_out), t.rho_in * t.U_in ** 2, 1.0)
+                        continue
                     if w is None:
                         EA = m.rod.section.EA
                         p_wall = EA / (np.pi * t.R0 ** 2) if np.isfinite(EA) else 0.0
@@ -412,6 +445,10 @@ class Simulation:
         st = self.state
         m = self.model
         n1 = st.n + 1
+        if self.open:
+            t = m.tube
+            if t.n_fixed:  # the piston's position at the step's midpoint (the potential is evaluated there)
+                t.c0[0] = t.piston + 0.5 * self.h * t.U_in
         z, iters, nres, njac = self._solve(st, n1)
         problem = self._label_problem(st.q, z, midpoint=False)
         if problem is not None:
@@ -436,7 +473,14 @@ class Simulation:
         q1 = self.scheme.retract(st.q, z, floating_origin=self.floating_origin, pt=pt)
         v = self._step_velocity(st.q, z, pt)
         lam = np.concatenate([z[m.tube_z][m.tube.nq:] if m.tube is not None else np.empty(0), z[m.rod_lam_z]])
-        self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), m.state_data())
+        if self.open:
+            self._open_fluxes(st.q, z)
+            new = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), None)
+            self._open_update(new)
+            new.data = m.state_data()
+            self._state = new
+        else:
+            self.state = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), m.state_data())
         s = self.stats
         s.iterations, s.n_residual, s.n_jacobian = iters, nres, njac
         s.total_iterations += iters
@@ -457,6 +501,8 @@ class Simulation:
 
     def monitors(self):
         """Invariants and energies at the current level (each part's, summed where they add up)."""
+        if self.open:
+            return self._open_monitors()
         if self.model.coupled:
             return self._coupled_monitors()
         # one part: the tube's blocks on the fixed centreline, or the rod alone
@@ -763,8 +809,189 @@ class Simulation:
             Kw = 0.5 * float(np.sum(pR * pR / t.mass[sl]))
         return Kf, Kr, Kw
 
+    # -- open ends (docs/theory.md §13) -----------------------------------------------
+
+    def _rebuild(self):
+        """The step, scales and Newton's reused factor after the open lattice changed (a label injected or removed)."""
+        m = self.model
+        m._layout()
+        self.scheme = make_scheme(m, self.h, self.scheme.name)
+        self.scale, self.offset = self._scales()
+        self._factor = None
+        self._built_version = m.tube.lattice_version
+
+    def _open_config(self, q, lam):
+        """The open tube's configuration at a level: the free labels ``q``, the piston at its level position."""
+        t = self.model.tube
+        cfg = t.config(np.concatenate([q, lam]))
+        if t.n_fixed:
+            cfg.s[0] = t.piston
+        return cfg
+
+    def _open_energy(self, st):
+        """(E, kinetic, potential terms, axial momentum, mass) of the open tube at the level of ``st``.
+
+        E = sum_free p^2 / (2 mbar) + U(level): the level energy of the free labels and every parcel of L_d (the
+        piston's kinetic energy is the inlet's, not the fluid's).  An incompressible liquid's potential is zero
+        (its constraint holds at the half levels)."""
+        m = self.model
+        t = m.tube
+        q, p, lam = st.q[m.tube_q], st.p[m.tube_p], st.lam[m.tube_lam]
+        cfg = self._open_config(q, lam)
+        K = 0.5 * float(np.sum(p * p / t.mass))
+        pot = t.energies(cfg)
+        return K + sum(pot.values()), K, pot, float(np.sum(p)), t.fluid_mass(cfg), cfg
+
+    def _open_start(self):
+        """t = 0: the balances' reference values, then the ends' rule applied to the initial lattice."""
+        t = self.model.tube
+        E, _, _, P, mass, _ = self._open_energy(self._state)
+        t.balance[:] = [E, P, mass, 0.0, 0.0, 0.0]
+        self._open_update(self._state)
+        self._state.data = self.model.state_data()
+
+    def _open_fluxes(self, q0, z):
+        """Book one step's boundary fluxes (docs/theory.md §13.4) from the step's own midpoint data, and move the piston.
+
+        Energy: the piston's work dS_p dU/ds_p(c_mid) and the end pressures' work (f^- + f^+) ds / h.  Axial momentum:
+        the piston's reaction h dU/ds_p, the wall's axial force -h sum_k dU/ds_k (zero in a uniform duct) and the end
+        pressures' impulses f^- + f^+.  Exact identities of the step but for the midpoint rule's own energy error
+        U(q1) - U(q0) - dq . grad U(c_mid), which vanishes when the parcels' volumes do not change."""
+        m, h = self.model, self.h
+        t = m.tube
+        pt = self.scheme.point(q0, z)
+        cfg = t.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
+        g = t.gradient(cfg)[: t.M + 1]
+        dE, dP = 0.0, -h * float(np.sum(g))
+        if t.n_fixed:
+            dE += h * t.U_in * g[0]
+            dP += h * g[0]
+        (i0, f0), (i1, f1) = t.forces[0].end_forces(h)
+        for i, f in ((i0, f0), (i1, f1)):
+            if i is not None:
+                dE += 2.0 * f * (pt.q1[i] - pt.q0[i]) / h
+                dP += 2.0 * f
+        t.balance[3] += dE
+        t.balance[4] += dP
+        if t.n_fixed:
+            t.piston += h * t.U_in
+
+    def _open_update(self, st):
+        """Inject and remove parcels at a level (docs/theory.md §13.2-13.3), booking what they carry.
+
+        The lattice holds the parcels whose centres are in the tube: when the first label passes half an inflow
+        parcel beyond s = 0 a new label is prepended a parcel's volume upstream (a new parcel at the inlet's state);
+        when the last parcel's centre passes s = L, that parcel and the last label are dropped.  Labels keep their
+        level velocities, their masses become those of the new lattice (half a parcel at each end)."""
+        m = self.model
+        t = m.tube
+        q, p, v, lam = st.q.copy(), st.p.copy(), st.v.copy(), st.lam.copy()
+        changed = False
+        while True:
+            labels = np.concatenate([[t.piston], q]) if t.n_fixed else q
+            if labels[0] >= 0.5 * t.ell_in:  # inject
+                V_in = t.V_in
+                if t.n_fixed and t.eos is not None:
+                    # a velocity inlet prescribes U_in and the entering entropy; the new parcel enters at the pressure
+                    # of the parcel it joins (the outgoing characteristic's): its volume follows, its mass is m_in
+                    V0 = float(t.duct.volumes(labels[:2])[0])
+                    p_adj = t.eos.pressure(t.m[0] / V0, t.S[0])
+                    V_in = t.m_in / float(t.eos.density(p_adj, t.S_in))
+                s_new = t.duct.below(labels[0], V_in)
+                V_new = float(t.duct.volumes(np.array([s_new, labels[0]]))[0])
+                psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([t.m_in]), np.array([t.S_in]))[0])
+                if t.n_fixed:  # the piston is released with its level momentum mbar U_in; a new piston upstream
+                    mb = 0.5 * (t.m_in + t.m[0])
+                    q, p, v = np.r_[t.piston, q], np.r_[mb * t.U_in, p], np.r_[t.U_in, v]
+                    dP, dE = mb * t.U_in, 0.5 * mb * t.U_in ** 2 + psi
+                    t.piston = s_new
+                else:  # pressure inlet: half the new parcel joins the first label, half is the new first label
+                    v0 = p[0] / (0.5 * t.m[0])
+                    p[0] = 0.5 * (t.m_in + t.m[0]) * v0
+                    q, p, v = np.r_[s_new, q], np.r_[0.5 * t.m_in * v0, p], np.r_[v[0], v]
+                    dP, dE = t.m_in * v0, 0.5 * t.m_in * v0 ** 2 + psi
+                if t.incompressible:
+                    lam = np.r_[lam[0], lam]
+                t.m, t.S = np.r_[t.m_in, t.m], np.r_[t.S_in, t.S]
+                t.balance[3:] += [dE, dP, t.m_in]
+                changed = True
+                continue
+            if len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L:  # remove the last parcel and label
+                ml, mp = 0.5 * t.m[-1], 0.5 * (t.m[-2] + t.m[-1])
+                vl, vp = p[-1] / ml, p[-2] / mp
+                V_last = float(t.duct.volumes(labels[-2:])[0])
+                psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_last]), t.m[-1:], t.S[-1:])[0])
+                dm = mp - 0.5 * t.m[-2]
+                dP = p[-1] + dm * vp
+                dE = 0.5 * ml * vl ** 2 + 0.5 * dm * vp ** 2 + psi
+                p[-2] = 0.5 * t.m[-2] * vp
+                q, p, v = q[:-1], p[:-1], v[:-1]
+                if t.incompressible:
+                    lam = lam[:-1]
+                t.balance[3:] -= [dE, dP, t.m[-1]]
+                t.m, t.S = t.m[:-1].copy(), t.S[:-1].copy()
+                changed = True
+                continue
+            break
+        if changed:
+            if len(t.m) > t.M_max:
+                raise SolverError(f"{self._where(st.n)}: the open tube holds {len(t.m)} parcels, more than the run file's "
+                                  f"{t.M_max} slots (the gas compressed more than twofold); use fewer fluid.parcels",
+                                  step=st.n, time=st.t)
+            st.q, st.p, st.v, st.lam, st.q_prev = q, p, v, lam, None
+            t._open_build()
+            self._rebuild()
+        elif t.n_fixed:
+            t.c0[0] = t.piston
+
+    def _open_monitors(self):
+        """Energy, axial momentum and mass with their balances against the boundary fluxes (docs/theory.md §13.4)."""
+        m, st = self.model, self.state
+        t = m.tube
+        E, K, pot, P, mass, cfg = self._open_energy(st)
+        E0, P0, mass0, fE, fP, fm = t.balance
+        out = {"kinetic_energy": K, "energy_fluid_kinetic": K, "energy_wall_kinetic": 0.0}
+        for k, val in pot.items():
+            out[f"energy_{k}"] = val
+        out["energy"] = E
+        out["mass"] = mass
+        out["linear_momentum"] = np.array([P, 0.0, 0.0])
+        out["angular_momentum"] = np.zeros(3)
+        out["energy_flux"] = fE
+        out["momentum_flux"] = np.array([fP, 0.0, 0.0])
+        out["mass_flux"] = fm
+        out["energy_balance"] = E - E0 - fE
+        out["momentum_balance"] = np.array([P - P0 - fP, 0.0, 0.0])
+        out["mass_balance"] = mass - mass0 - fm
+        out["parcels"] = int(t.M)
+        out["newton_iterations"] = self.stats.iterations
+        out["entropy"] = float(np.sum(t.m * t.S))
+        if t.incompressible:
+            out["constraint_residual"] = float(np.max(np.abs(t.volumes(cfg) / t.V0 - 1.0)))
+        return out
+
+    def _open_fields(self):
+        """Fields on the run file's fixed slots: label k (parcel k) is the k-th from the upstream end, NaN beyond
+        the active ones; ``fluid/active`` marks the labels present (docs/output.md)."""
+        m, st = self.model, self.state
+        t = m.tube
+        q, p, lam = st.q[m.tube_q], st.p[m.tube_p], st.lam[m.tube_lam]
+        cfg = self._open_config(q, lam)
+        M, Mx = t.M, t.M_max
+        rho = t.density(cfg)
+        pressure = lam.copy() if t.incompressible else t.eos.pressure(rho, t.S)
+        u = p / t.mass
+        if t.n_fixed:
+            u = np.r_[t.U_in, u]
+        lab = lambda x: np.r_[x, np.full(Mx + 1 - len(x), np.nan)]  # noqa: E731
+        par = lambda x: np.r_[x, np.full(Mx - len(x), np.nan)]  # noqa: E731
+        return {"fluid/s": lab(cfg.s.copy()), "fluid/density": par(rho), "fluid/pressure": par(pressure),
+                "fluid/velocity": lab(u), "fluid/entropy": par(t.S.copy()), "fluid/active": t.active_mask()}
+
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""
+        if self.open:
+            return self._open_fields()
         m, st = self.model, self.state
         out = {}
         t = m.tube

@@ -94,12 +94,18 @@ class TubePart:
         self.coupled = scene.rod is not None
         #: non-conservative forces on the tube's blocks (discrete Lagrange-d'Alembert, varint.forces.Force)
         self.forces = []
-        self._layout()
-        self._initial_state()
-        self._terms()
+        #: open ends on the fixed straight centreline with a rigid wall (docs/theory.md §13): a varying set of labels
+        #: (varint.open_ends); with a [wall] (not yet) the closed layout is built and the stepper refuses the run
+        self.open = self.open_ends and not self.coupled and not self.has_wall
+        if self.open:
+            self._open_init()
+        else:
+            self._layout()
+            self._initial_state()
+            self._terms()
         #: [shock_capturing]: viscous pressure, energy-exact pressure and heating (varint.shock_capturing)
         self.shock_capturing = None
-        if getattr(scene, "shock_capturing", None) is not None:
+        if getattr(scene, "shock_capturing", None) is not None and not self.open:
             from .shock_capturing import make_shock_capturing
 
             self.shock_capturing = make_shock_capturing(self, scene.shock_capturing)
@@ -168,14 +174,139 @@ class TubePart:
     def unknown_names(self):
         return list(self.layout)
 
+    # -- open ends (docs/theory.md §13) ---------------------------------------------------
+
+    def _open_init(self):
+        """The open straight tube: the duct on the extended line, the inlet's parcel, the initial lattice on [0, L]."""
+        from .open_ends import Duct, EndPressures
+
+        sc = self.scene
+        e = sc.fluid.ends
+        self.inflow = e.inflow  #: "velocity" (the first label is a piston moving at U_in) or "pressure"
+        self.U_in = float(e.inflow_velocity)
+        self.p_in = float(e.inflow_pressure)
+        self.p_out = float(e.outflow_pressure)
+        self.n_fixed = 1 if self.inflow == "velocity" else 0  #: labels prescribed (data of L_d), upstream first
+        self.nR = self.N + 1
+        R = np.full(self.nR, self.R0)
+        self.node_s = np.arange(self.nR) * self.ds
+        if sc.tube.area_table is not None:
+            tab = np.array(sc.tube.area_table)
+            R = np.sqrt(np.interp(self.node_s, tab[:, 0], tab[:, 1]) / math.pi)
+        self.R_reference = R
+        w = np.full(self.nR, self.ds)
+        w[0] = w[-1] = 0.5 * self.ds
+        self.node_weights = w
+        self.duct = Duct(R, self.ds)
+        # the entering fluid: parcels of the scene's parcel length at the inlet section, at the inlet's state
+        rho_in = float(e.inflow_density)
+        if self.eos is not None and not self.eos.has_entropy and self.inflow == "pressure":
+            rho_in = float(self.eos.density(self.p_in))  # a barotropic liquid's density follows from the inlet pressure
+        self.rho_in = rho_in
+        self.ell_in = self.L / self.M
+        self.V_in = self.duct.A_in * self.ell_in
+        self.m_in = rho_in * self.V_in
+        self.S_in = float(self.eos.entropy(rho_in, self.p_in)) if self.eos is not None and self.eos.has_entropy else 0.0
+        self.rho0 = sc.fluid.density
+        #: label slots of the run file (fixed): the tube holds at most this many parcels (a gas compressed twofold)
+        self.M_max = 2 * self.M + 8
+        f = initial_fields(sc.fluid, self.eos)
+        s = np.linspace(0.0, self.L, self.M + 1)
+        V = self.duct.volumes(s)
+        centres = 0.5 * (s[:-1] + s[1:])
+        self.m = f.density(centres) * V
+        self.S = f.entropy(centres)
+        u = f.velocity(s)
+        self.piston = float(s[0])  #: the prescribed first label's position at the level (velocity inlet)
+        #: accumulated balances: E0, P0, mass0 (set by the stepper at t = 0), then the boundary fluxes of energy,
+        #: axial momentum and mass summed over the run (docs/theory.md §13.4)
+        self.balance = np.zeros(6)
+        self.lattice_version = 0
+        self.forces = [EndPressures(self)]
+        self.terms = []
+        self._open_build()
+        nf = self.n_fixed
+        self.q_init = s[nf:].copy()
+        self.v_init = u[nf:].copy()
+        self.p_init = self.mass * self.v_init
+        self.lam_init = np.full(self.M, float(sc.fluid.pressure)) if self.incompressible else np.zeros(0)
+
+    def label_masses(self, m=None):
+        """Lumped label masses of an open lattice: (m_{k-1} + m_k)/2 inside, half a parcel at each end."""
+        m = self.m if m is None else m
+        return np.concatenate([[0.5 * m[0]], 0.5 * (m[:-1] + m[1:]), [0.5 * m[-1]]])
+
+    def _open_build(self):
+        """Layout, B, c0, masses and terms of the current open lattice (labels 0..M, the first n_fixed prescribed)."""
+        from .open_ends import OpenIncompressibility, OpenInternalEnergy
+
+        self.M = M = len(self.m)
+        nf, nR = self.n_fixed, self.nR
+        nlab = M + 1
+        self.index = {"s": 0, "R": nlab, "mu": nlab + nR}
+        self.nconfig = nlab + nR + (M if self.incompressible else 0)
+        self.nq = nlab - nf
+        blocks = {"s": slice(0, self.nq)}
+        if self.incompressible:
+            blocks["mu"] = slice(self.nq, self.nq + M)
+        self.nz = self.nq + (M if self.incompressible else 0)
+        self.nlam = self.nz - self.nq
+        self.layout = blocks
+        rows = [np.arange(nf, nlab)]
+        cols = [np.arange(self.nq)]
+        if self.incompressible:
+            rows.append(self.index["mu"] + np.arange(M))
+            cols.append(self.nq + np.arange(M))
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        self.B = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(self.nconfig, self.nz))
+        self.c0 = np.zeros(self.nconfig)
+        self.c0[self.index["R"]:self.index["R"] + nR] = self.R_reference
+        if nf:
+            self.c0[0] = self.piston  # the stepper puts the step's midpoint here while it solves
+        mb = self.label_masses()
+        self.label_mass_config = mb
+        self.label_mass_all = mb
+        self.mass = mb[nf:].copy()
+        if self.incompressible:
+            self.V0 = self.m / self.rho0
+            self.terms = [OpenIncompressibility(self.duct, self.V0)]
+        else:
+            self.terms = [OpenInternalEnergy(self.duct, self.eos, self.m, self.S)]
+        self.lattice_version += 1
+
+    def active_mask(self):
+        """Which of the M_max + 1 label slots hold a label (slot k: the k-th label from the upstream end)."""
+        a = np.zeros(self.M_max + 1, dtype=np.int64)
+        a[: self.M + 1] = 1
+        return a
+
     # -- data the forces change (State.data, checkpoints) ------------------------------
 
     def evolving_data(self):
-        """``{"S": parcel entropies}`` when a viscosity heats the parcels ([shock_capturing]), else ``{}``."""
+        """``{"S": parcel entropies}`` when a viscosity heats the parcels ([shock_capturing]), else ``{}``.
+
+        Open ends: the lattice (parcel masses ``m``, entropies ``S``, the ``piston`` position, the ``active`` slot
+        mask) and the accumulated ``balance`` (docs/theory.md §13.4-13.5): what a resumed run rebuilds from.
+        """
+        if self.open:
+            return {"m": self.m.copy(), "S": self.S.copy(), "piston": np.array([self.piston]),
+                    "balance": self.balance.copy(), "active": self.active_mask().astype(float)}
         return {"S": self.S.copy()} if self.shock_capturing is not None else {}
 
     def set_evolving_data(self, data):
         """Restore :meth:`evolving_data` (in place: the internal-energy term holds this array)."""
+        if self.open:
+            if not data or "m" not in data:
+                return
+            m, S = np.asarray(data["m"], dtype=float), np.asarray(data["S"], dtype=float)
+            self.piston = float(data["piston"][0])
+            self.balance = np.array(data["balance"], dtype=float)
+            if len(m) != len(self.m) or np.any(m != self.m) or np.any(S != self.S):
+                self.m, self.S = m.copy(), S.copy()
+                self._open_build()
+            elif self.n_fixed:
+                self.c0[0] = self.piston
+            return
         if self.shock_capturing is not None and data and "S" in data:
             self.S[:] = data["S"]
 
@@ -275,7 +406,14 @@ class TubePart:
         self.terms = terms
 
     def invariants(self):
-        """Invariants this model keeps, from the terms' declarations and the boundaries."""
+        """Invariants this model keeps, from the terms' declarations and the boundaries.
+
+        Open ends (docs/theory.md §13.4): energy, axial momentum and mass are not kept but balanced against the
+        boundary fluxes (``energy_balance``, ``momentum_balance``, ``mass_balance``); an incompressible liquid
+        keeps its parcels' volumes.
+        """
+        if self.open:
+            return ["energy_balance", "momentum_balance", "mass_balance"] + (["parcel_volume"] if self.incompressible else [])
         base = ["energy"]
         if self.has_fluid:
             base += ["mass", "parcel_entropy"] if self.eos is not None and self.eos.has_entropy else ["mass"]
@@ -307,6 +445,8 @@ class TubePart:
         """
         if not self.has_fluid:
             return None
+        if self.open:  # the extended line: finite, increasing labels
+            return label_problem(cfg.s, self.nR, self.ds, False, tube=False)
         return label_problem(cfg.s, self.nR, self.ds, self.periodic)
 
     def energies(self, cfg):
@@ -354,6 +494,8 @@ class TubePart:
     # -- observables ----------------------------------------------------------
 
     def volumes(self, cfg):
+        if self.open:
+            return self.duct.volumes(cfg.s)
         return parcel_volumes(cfg.s, cfg.R, self.ds, self.periodic)
 
     def density(self, cfg, V=None):
@@ -421,4 +563,9 @@ class TubePart:
         if self.has_fluid:
             d["fluid"] = {"model": self.scene.fluid.model, "total_mass": float(np.sum(self.m)),
                           "external_pressure": self.p_ext}
+        if self.open:
+            d["open_ends"] = {"inflow": self.inflow, "inflow_velocity": self.U_in, "inflow_density": self.rho_in,
+                              "inflow_pressure": self.p_in, "outflow_pressure": self.p_out,
+                              "inflow_parcel_length": self.ell_in, "inflow_parcel_mass": self.m_in,
+                              "parcel_slots": self.M_max}
         return d

@@ -1,0 +1,217 @@
+"""Open ends of the straight tube: the duct on the extended line, its potential terms and the end forces.
+
+``fluid.ends = { s0 = "inflow", sL = "outflow" }`` on a tube without ``[rod]`` (docs/theory.md §13.1-13.5).
+The labels live on the extended line: beyond s = 0 and s = L the duct continues with the end's
+cross-section (A_in = A(0), A_out = A(L)) and no wall, so a parcel's volume is
+
+    V_k = F(s_{k+1}) - F(s_k),   F(s) = int_0^s A,   F' = A (continuous),  F'' = A' (jumps at nodes),
+
+exact for the linear radius of §3 inside the tube and A times the length outside it.  The terms here are
+those of varint.terms (internal energy, incompressibility) on this F: the same Config interface (label
+positions ``cfg.s``, multipliers ``cfg.mu``), with values, gradients and tridiagonal Hessians in
+configuration index space.  Rigid wall only (uniform radius or ``tube.area_table``): the radii are data.
+
+The end forces enter by Lagrange-d'Alembert (varint.forces): the outlet pressure on the last label,
+f^- = f^+ = -(h/2) p_out A_out, and at a pressure inlet p_in on the first label, f^± = +(h/2) p_in A_in.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .forces import Declaration, Force
+
+__all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures"]
+
+
+class Duct:
+    """The rigid duct on the extended line: F(s) = int_0^s A, A(s) and A'(s) from the nodal radii ``R``."""
+
+    def __init__(self, R, ds):
+        self.R = np.asarray(R, dtype=np.float64)
+        self.ds = float(ds)
+        self.N = len(self.R) - 1
+        self.L = self.N * self.ds
+        self.uniform = bool(np.all(self.R == self.R[0]))
+        a, b = self.R[:-1], self.R[1:]
+        self.F_nodes = np.concatenate([[0.0], np.cumsum(self.ds * math.pi * (a * a + a * b + b * b) / 3.0)])
+        self.A_in = math.pi * self.R[0] ** 2
+        self.A_out = math.pi * self.R[-1] ** 2
+        self.volume = float(self.F_nodes[-1])
+
+    def _locate(self, s):
+        e = np.clip(np.floor(s / self.ds), 0, self.N - 1).astype(np.int64)
+        t = s / self.ds - e
+        return e, t, self.R[e], self.R[e + 1]
+
+    def F(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        if self.uniform:
+            return self.A_in * s
+        e, t, a, b = self._locate(s)
+        inside = self.F_nodes[e] + self.ds * math.pi * (a * a * t + a * (b - a) * t * t + (b - a) ** 2 * t ** 3 / 3.0)
+        return np.where(s < 0.0, self.A_in * s, np.where(s > self.L, self.volume + self.A_out * (s - self.L), inside))
+
+    def A(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        if self.uniform:
+            return np.full(s.shape, self.A_in)
+        e, t, a, b = self._locate(s)
+        r = a + (b - a) * t
+        return np.where(s < 0.0, self.A_in, np.where(s > self.L, self.A_out, math.pi * r * r))
+
+    def dA(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        if self.uniform:
+            return np.zeros(s.shape)
+        e, t, a, b = self._locate(s)
+        r = a + (b - a) * t
+        return np.where((s < 0.0) | (s > self.L), 0.0, 2.0 * math.pi * r * (b - a) / self.ds)
+
+    def volumes(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        if self.uniform:
+            return self.A_in * np.diff(s)
+        F = self.F(s)
+        return F[1:] - F[:-1]
+
+    def below(self, s_right, V):
+        """The label x < s_right with F(s_right) - F(x) = V (the upstream label of a new parcel of volume V)."""
+        if self.uniform:
+            return s_right - V / self.A_in
+        target = float(self.F(s_right)) - V
+        x = s_right - V / float(self.A(s_right))
+        for _ in range(50):  # Newton on the monotone, C^1 F (quadratic convergence inside an element)
+            dx = (float(self.F(x)) - target) / float(self.A(x))
+            x -= dx
+            if abs(dx) <= 4 * np.finfo(float).eps * max(abs(x), self.L):
+                break
+        return x
+
+
+class _OpenParcelTerm:
+    touches = ("s",)
+    breaks = frozenset()
+
+    def __init__(self, duct):
+        self.duct = duct
+
+    def volumes(self, cfg, cache):
+        if "V" not in cache:
+            cache["V"] = self.duct.volumes(cfg.s)
+        return cache["V"]
+
+    def _label_coeffs(self, cfg, cache):
+        if "A" not in cache:
+            cache["A"] = self.duct.A(cfg.s)
+            cache["dA"] = self.duct.dA(cfg.s)
+        return cache["A"], cache["dA"]
+
+    @staticmethod
+    def _grad_from(c1, A):
+        """d/ds of sum_k psi_k(V_k) with psi_k' = c1_k: dV_k/ds_k = -A(s_k), dV_k/ds_{k+1} = A(s_{k+1})."""
+        g = np.zeros(len(A))
+        g[:-1] -= c1 * A[:-1]
+        g[1:] += c1 * A[1:]
+        return g
+
+    @staticmethod
+    def _hess_from(c1, c2, A, dA):
+        """Tridiagonal Hessian of sum_k psi_k(V_k) (psi' = c1, psi'' = c2) in the labels, as COO triples."""
+        n = len(A)
+        diag = np.zeros(n)
+        diag[:-1] += c2 * A[:-1] ** 2 - c1 * dA[:-1]
+        diag[1:] += c2 * A[1:] ** 2 + c1 * dA[1:]
+        off = -c2 * A[:-1] * A[1:]
+        k = np.arange(n - 1)
+        rows = np.concatenate([np.arange(n), k, k + 1])
+        cols = np.concatenate([np.arange(n), k + 1, k])
+        return rows, cols, np.concatenate([diag, off, off])
+
+
+class OpenInternalEnergy(_OpenParcelTerm):
+    """sum_k m_k e(m_k / V_k, S_k) on the extended duct."""
+
+    name = "internal"
+
+    def __init__(self, duct, eos, m, S):
+        super().__init__(duct)
+        self.eos, self.m, self.S = eos, m, S
+        if not duct.uniform:
+            self.breaks = frozenset({"axial_momentum"})
+
+    def energy(self, cfg, cache):
+        return float(np.sum(self.eos.psi(self.volumes(cfg, cache), self.m, self.S)))
+
+    def gradient(self, cfg, cache, gs, gR, gmu):
+        d1, _ = self.eos.dpsi(self.volumes(cfg, cache), self.m, self.S)
+        A, _ = self._label_coeffs(cfg, cache)
+        gs += self._grad_from(d1, A)
+
+    def hessian(self, cfg, cache, index):
+        d1, d2 = self.eos.dpsi(self.volumes(cfg, cache), self.m, self.S)
+        A, dA = self._label_coeffs(cfg, cache)
+        return self._hess_from(d1, d2, A, dA)
+
+
+class OpenIncompressibility(_OpenParcelTerm):
+    """-sum_k mu_k (V_k - V0_k) on the extended duct (mu: the pressure, as varint.terms.Incompressibility)."""
+
+    name = "incompressibility"
+    touches = ("s", "mu")
+
+    def __init__(self, duct, V0):
+        super().__init__(duct)
+        self.V0 = V0
+        if not duct.uniform:
+            self.breaks = frozenset({"axial_momentum"})
+
+    def energy(self, cfg, cache):
+        return -float(np.dot(cfg.mu, self.volumes(cfg, cache) - self.V0))
+
+    def gradient(self, cfg, cache, gs, gR, gmu):
+        A, _ = self._label_coeffs(cfg, cache)
+        gs += self._grad_from(-cfg.mu, A)
+        gmu -= self.volumes(cfg, cache) - self.V0
+
+    def hessian(self, cfg, cache, index):
+        A, dA = self._label_coeffs(cfg, cache)
+        r, c, v = self._hess_from(-cfg.mu, np.zeros_like(cfg.mu), A, dA)
+        M = len(cfg.mu)
+        k = np.arange(M)
+        mu = index["mu"] + k
+        # d^2/(ds_j dmu_k) = -dV_k/ds_j: +A(s_k) at j = k, -A(s_{k+1}) at j = k + 1
+        jr = np.concatenate([k, k + 1])
+        jv = np.concatenate([A[:-1], -A[1:]])
+        jc = np.concatenate([mu, mu])
+        return np.concatenate([r, jr, jc]), np.concatenate([c, jc, jr]), np.concatenate([v, jv, jv])
+
+
+class EndPressures(Force):
+    """The pressures at the open ends on the end labels (discrete Lagrange-d'Alembert, docs/theory.md §13.2-13.3).
+
+    Outlet: f^- = f^+ = -(h/2) p_out A_out on the last label (the jet's pressure on the fluid that has not left);
+    pressure inlet: f^- = f^+ = +(h/2) p_in A_in on the first label.  Constant: no Jacobian block.  Their work
+    over a step is (f^- + f^+) times the end label's displacement, their impulse f^- + f^+ (the balances).
+    """
+
+    declaration = Declaration("open_ends", {"energy": None, "axial_momentum": None, "mass": None,
+                                            "parcel_entropy": None})
+
+    def __init__(self, tube):
+        self.tube = tube
+
+    def end_forces(self, h):
+        """(index of the first free label in the tube's s block or None, its f^-; index of the last, its f^-)."""
+        t = self.tube
+        sl = t.layout["s"]
+        first = (sl.start, 0.5 * h * t.p_in * t.duct.A_in) if t.inflow == "pressure" else (None, 0.0)
+        return first, (sl.stop - 1, -0.5 * h * t.p_out * t.duct.A_out)
+
+    def add(self, pt, d, level):
+        (i0, f0), (i1, f1) = self.end_forces(pt.h)
+        if i0 is not None:
+            d.tube_q[i0] += f0
+        d.tube_q[i1] += f1
