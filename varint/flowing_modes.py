@@ -212,7 +212,7 @@ def first_order_modes(K, C, M, count=20, vectors=False, shift=None):
     ``shift`` (default: -1e-3 of the smallest sqrt(K_ii/M_ii)): the eigenvalues mu of (A - shift B)^-1 B give
     s = shift + 1/mu, so the lowest s carry the round-off of the lowest, not of the stiffest, modes; mu = 0 (an
     infinite s of a massless unknown) is dropped.  Returns ``[{"frequency": Im s, "growth_rate": Re s}, ...]``:
-    one entry per complex-conjugate pair (Im s > 0) and one per real eigenvalue; parts below 1e-9 |s| are
+    one entry per complex-conjugate pair (Im s > 0) and one per real eigenvalue; parts below 1e-6 |s| are
     round-off (0).  Sorted by frequency, then growth rate descending; ``count`` first.  With ``vectors`` the
     complex displacement parts too.
     """
@@ -232,7 +232,9 @@ def first_order_modes(K, C, M, count=20, vectors=False, shift=None):
     ok = np.abs(mu) > 1e-13 * big
     s = shift + 1.0 / mu[ok]
     Y = Y[:n, ok]
-    tiny = 1e-9 * np.abs(s)
+    # round-off: a near-double eigenvalue (two frequencies about to merge at a divergence or a flutter threshold)
+    # is split by ~sqrt(eps) of its size, so parts below 1e-6 |s| are taken as 0
+    tiny = 1e-6 * np.abs(s)
     re = np.where(np.abs(s.real) <= tiny, 0.0, s.real)
     im = np.where(np.abs(s.imag) <= tiny, 0.0, s.imag)
     keep = np.flatnonzero(im >= 0.0)

@@ -1,0 +1,227 @@
+"""Modes of a tube conveying fluid (varint/flowing_modes.py, docs/theory.md §13.6) against the classical theory of
+pipes conveying fluid: Païdoussis' eq. (3.70) solved independently by varint/pipe_stability.py (Galerkin on beam
+modes; validated against the exact determinant in tests/test_pipe_stability.py).  The pipe: L = 1, EI = 1,
+M + m = 1 (so u = U sqrt(M), omega = Omega, gamma = g), nearly inextensible and unshearable (EA = kGA = 1e7 EI/L^2),
+with a small rotary inertia (radius of gyration 1e-3 L); 40 elements unless said.  Measured errors (40 / 20
+elements) are in docs/validation.md; their order is 2.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from varint import pipe_stability as ps
+from varint.errors import VarintError
+from varint.flowing_modes import first_order_modes, flow_matrices, flowing_linearization, threshold
+from varint.model import build_model
+from varint.modes_api import scene_modes, strongest
+from varint.scene import parse_scene
+
+
+def pipe_text(ends=("clamped", "free"), beta=0.2, u=1.0, nodes=41, dim=2, gamma=0.0, open_ends=True, extra=""):
+    """A [rod] + [fluid] pipe with Païdoussis' (u, beta, gamma): EI = 1, L = 1, M + m = 1, gravity along the tube."""
+    M, m, R = beta, 1.0 - beta, 0.01
+    U = float(u / np.sqrt(M))
+    fluid_ends = 'ends = { s0 = "inflow", sL = "outflow" }' if open_ends else ""
+    grav = f"[environment]\ngravity = [{float(gamma)!r}, 0.0, 0.0]\n" if gamma else ""
+    return f"""title = "pipe conveying fluid"
+[tube]
+length = 1.0
+nodes = {nodes}
+radius = {R!r}
+
+[rod]
+dimension = {dim}
+mass_per_length = {m!r}
+rotary_inertia = {m * 1e-6!r}
+bending_stiffness = 1.0
+torsional_stiffness = 1.0
+axial_stiffness = 1.0e7
+shear_stiffness = 1.0e7
+ends = {{ s0 = "{ends[0]}", sL = "{ends[1]}" }}
+
+[fluid]
+model = "incompressible"
+density = {float(M / (np.pi * R * R))!r}
+velocity = {U if open_ends else 0.0!r}
+pressure = 1.0e5
+parcels = {nodes - 1}
+{fluid_ends}
+{extra}
+{grav}
+[time]
+step = 1e-3
+end = 1e-3
+"""
+
+
+def model_of(*args, **kw):
+    return build_model(parse_scene(pipe_text(*args, **kw)))
+
+
+def u_threshold(ends, beta, lo, hi, nodes=41, gamma=0.0, dim=2):
+    """(u_c, Omega_c) by the bisection of varint.flowing_modes.threshold on fluid.velocity (U = u / sqrt(beta))."""
+    about = "static" if gamma else "initial"
+    text = pipe_text(ends, beta, 1.0, nodes, dim, gamma)
+    res = threshold(text, lo / np.sqrt(beta), hi / np.sqrt(beta), count=8, about=about, rtol=1e-5)
+    return res["value"] * np.sqrt(beta), res["frequency"]
+
+
+def test_flow_matrices_integrate_the_catmull_rom_weights_exactly():
+    """M int N N^T, int N N'^T, int N N''^T, int N on polynomials the interpolant reproduces (quadratics), and
+    the integration by parts C1 + C1^T = [N N^T]_0^L that turns the Lagrangian's gyroscopic term and the two
+    momentum fluxes into 2 U C1 (docs/theory.md §13.6)."""
+    n, ds = 13, 0.25
+    Mf, C1, S, W = flow_matrices(n, ds, M=2.0)
+    s = np.arange(n) * ds
+    L = s[-1]
+    one = np.ones(n)
+    assert W.sum() == pytest.approx(2.0 * L, rel=1e-14)
+    assert one @ Mf @ s == pytest.approx(2.0 * L ** 2 / 2, rel=1e-13)
+    assert s @ Mf @ s == pytest.approx(2.0 * L ** 3 / 3, rel=1e-13)
+    assert one @ C1 @ s ** 2 == pytest.approx(2.0 * L ** 2, rel=1e-13)
+    assert np.max(np.abs(S @ s)) < 1e-12  # a straight line has no curvature: no centrifugal load
+    assert s @ S @ s ** 2 == pytest.approx(2.0 * 2 * L ** 2 / 2, rel=1e-13)
+    ends = np.zeros((n, n))
+    ends[-1, -1], ends[0, 0] = 2.0, -2.0
+    assert np.max(np.abs(C1 + C1.T - ends)) < 1e-13
+    assert np.allclose(Mf, Mf.T, atol=1e-15) and np.all(np.linalg.eigvalsh(Mf) > 0)
+
+
+def test_straight_flowing_pipe_is_an_equilibrium_without_base_tension():
+    """The axial follower force of the jet balances the centrifugal term's axial pull at the straight state."""
+    lin = flowing_linearization(model_of(beta=0.5, u=8.0))
+    assert lin["unbalanced"] < 1e-13
+    assert lin["parameters"]["u"] == pytest.approx(8.0, rel=1e-12)
+    assert lin["parameters"]["beta"] == pytest.approx(0.5, rel=1e-12)
+
+
+@pytest.mark.parametrize("ends, truth", [(("pinned", "pinned"), np.pi), (("clamped", "clamped"), 2 * np.pi)])
+def test_supported_pipes_diverge_at_the_classical_velocity(ends, truth):
+    """Divergence (a real eigenvalue through 0) at u = pi and 2 pi within 1 % (pipe_stability's too); below it the
+    conservative gyroscopic pipe has no growth rate at all (a supported outlet has no transverse follower force)."""
+    name = "-".join(ends)
+    uc_ref, om_ref, kind = ps.critical_flow_velocity(0.5, name)
+    assert kind == "divergence" and uc_ref == pytest.approx(truth, rel=1e-6)
+    uc, om = u_threshold(ends, 0.5, 0.9 * truth, 1.1 * truth)
+    assert uc == pytest.approx(uc_ref, rel=1e-2)
+    assert abs(uc / uc_ref - 1) < 2e-3  # measured 40 elements: 3.7e-4 (pinned), 1.2e-3 (clamped)
+    assert om == 0.0
+    below = scene_modes(parse_scene(pipe_text(ends, 0.5, 0.98 * uc)), count=10)["modes"]
+    assert all(m["growth_rate"] == 0.0 for m in below)
+    above = strongest(scene_modes(parse_scene(pipe_text(ends, 0.5, 1.02 * uc)), count=10)["modes"])
+    assert above["growth_rate"] > 0.0 and above["frequency"] == 0.0
+
+
+@pytest.mark.parametrize("beta", [0.1, 0.2, 0.5, 0.8])
+def test_cantilever_flutter_threshold_and_frequency(beta):
+    """Flutter of the cantilevered pipe (Gregory & Païdoussis 1966): u_cr and the frequency within 2 %."""
+    uc_ref, om_ref, kind = ps.critical_flow_velocity(beta, "clamped-free")
+    assert kind == "flutter"
+    uc, om = u_threshold(("clamped", "free"), beta, 0.9 * uc_ref, 1.1 * uc_ref)
+    assert uc == pytest.approx(uc_ref, rel=2e-2)
+    assert om == pytest.approx(om_ref, rel=2e-2)  # omega = Omega L^2 sqrt((M+m)/EI) = Omega here
+
+
+def test_cantilever_flutter_converges_at_second_order():
+    uc_ref, om_ref, _ = ps.critical_flow_velocity(0.5, "clamped-free")
+    e20 = u_threshold(("clamped", "free"), 0.5, 0.9 * uc_ref, 1.1 * uc_ref, nodes=21)[0] / uc_ref - 1
+    e40 = u_threshold(("clamped", "free"), 0.5, 0.9 * uc_ref, 1.1 * uc_ref, nodes=41)[0] / uc_ref - 1
+    assert 1.7 < np.log2(abs(e20 / e40)) < 2.5  # measured 1.1e-2 / 2.4e-3: 2.2
+
+
+@pytest.mark.parametrize("frac, grows", [(0.99, False), (1.01, True)])
+def test_growth_rate_changes_sign_at_the_flutter_threshold(frac, grows):
+    """Through ``varint modes``' route (scene_modes, strongest as the sweep tabulates): decaying just below the
+    threshold (every growth rate negative: the flow damps a cantilever), growing just above, at the flutter
+    frequency."""
+    uc_ref, om_ref, _ = ps.critical_flow_velocity(0.2, "clamped-free")
+    s = strongest(scene_modes(parse_scene(pipe_text(beta=0.2, u=frac * uc_ref)), count=10)["modes"])
+    if grows:
+        assert s["growth_rate"] > 0.0 and s["frequency"] == pytest.approx(om_ref, rel=2e-2)
+    else:
+        assert s["growth_rate"] < 0.0
+
+
+def test_hanging_cantilever_threshold_with_gravity():
+    """Païdoussis' hanging pipe (gamma = 10, beta = 0.2), linearised about the steady state under gravity (the rod's
+    tension there is T - pA = (M+m) g (L - s))."""
+    uc_ref, om_ref, kind = ps.critical_flow_velocity(0.2, "clamped-free", gamma=10.0)
+    assert kind == "flutter"
+    uc, om = u_threshold(("clamped", "free"), 0.2, 0.9 * uc_ref, 1.1 * uc_ref, gamma=10.0)
+    assert uc == pytest.approx(uc_ref, rel=2e-2)
+    assert om == pytest.approx(om_ref, rel=2e-2)
+    # gravity changes the threshold (6.34 against 5.59): the test can tell the tension from no tension
+    assert abs(uc_ref / ps.critical_flow_velocity(0.2, "clamped-free")[0] - 1) > 0.1
+    lin = flowing_linearization(model_of(beta=0.2, u=uc, gamma=10.0), about="static")
+    assert lin["unbalanced"] < 1e-9 and lin["parameters"]["gamma"] == pytest.approx(10.0, rel=1e-12)
+
+
+def test_no_flow_agrees_with_the_liquid_filled_tube_at_rest():
+    """U = 0: the flowing linearisation's bending frequencies are those of varint.coupled_modes for the same tube,
+    closed and full of liquid at rest (lateral inertia M per length in both: consistent integral here, the labels'
+    lumped masses there), to O(ds^2)."""
+    from varint.coupled_modes import coupled_modes
+
+    diffs = []
+    for nodes in (21, 41):
+        lin = flowing_linearization(model_of(beta=0.5, u=1.0, nodes=nodes), velocity=0.0)
+        a = first_order_modes(lin["K"], lin["C"], lin["M"], 3)
+        b = coupled_modes(model_of(beta=0.5, nodes=nodes, open_ends=False), 3)
+        assert all(m["growth_rate"] == 0.0 for m in a)
+        diffs.append(np.array([x["frequency"] / y["frequency"] - 1 for x, y in zip(a, b)]))
+    assert np.max(np.abs(diffs[1])) < 1.5e-3  # measured 1.5e-4, 5.0e-4, 8.3e-4
+    assert np.all(np.log2(np.abs(diffs[0] / diffs[1])) > 1.7)
+    # and the first is Euler-Bernoulli's 1.8751^2 sqrt(EI / ((M+m) L^4))
+    assert a[0]["frequency"] == pytest.approx(ps.beam_wavenumbers("clamped-free", 1)[0] ** 2, rel=1e-3)
+
+
+def test_three_dimensional_pipe_has_the_planar_threshold():
+    """A 3D rod: each planar mode twice, the same threshold as the planar rod."""
+    model = model_of(beta=0.2, u=5.0, nodes=21, dim=3)
+    lin = flowing_linearization(model)
+    res = first_order_modes(lin["K"], lin["C"], lin["M"], 6)
+    for a, b in zip(res[0::2], res[1::2]):
+        assert a["frequency"] == pytest.approx(b["frequency"], rel=1e-8)
+        assert a["growth_rate"] == pytest.approx(b["growth_rate"], rel=1e-6)
+    u3 = u_threshold(("clamped", "free"), 0.2, 5.0, 6.0, nodes=21, dim=3)[0]
+    u2 = u_threshold(("clamped", "free"), 0.2, 5.0, 6.0, nodes=21, dim=2)[0]
+    assert u3 == pytest.approx(u2, rel=1e-4)
+
+
+@pytest.mark.parametrize("extra, fluid, match", [
+    ("", ('model = "incompressible"', 'model = "ideal-gas"'), "flowing ideal-gas"),
+    ('[wall]\nmodel = "quasistatic"\nthickness = 0.002\ndensity = 1100.0\nyoungs_modulus = 5.0e6\n', None, r"\[wall\]"),
+])
+def test_refusals_are_one_line(extra, fluid, match):
+    text = pipe_text(extra=extra)
+    if fluid:
+        text = text.replace(*fluid)
+    with pytest.raises(VarintError, match=match) as exc:
+        scene_modes(parse_scene(text), count=4)
+    assert "\n" not in str(exc.value)
+
+
+def test_cli_modes_of_a_flowing_pipe(tmp_path):
+    """``varint modes`` prints the flow's parameters and signed growth rates; ``--json`` has them too."""
+    scene = tmp_path / "pipe.toml"
+    scene.write_text(pipe_text(beta=0.2, u=6.0, nodes=21))
+    out = subprocess.run([sys.executable, "-m", "varint", "modes", str(scene), "-n", "4"], capture_output=True,
+                         text=True, check=True).stdout
+    assert "u = 6, beta = 0.2" in out and "growth rate" in out
+    d = json.loads(subprocess.run([sys.executable, "-m", "varint", "modes", str(scene), "-n", "4", "--json"],
+                                  capture_output=True, text=True, check=True).stdout)
+    assert d["flow"]["u"] == pytest.approx(6.0) and len(d["modes"]) == 4
+    assert max(m["growth_rate"] for m in d["modes"]) > 0.0  # above u_cr = 5.59
+
+
+def test_sweep_point_on_a_flowing_pipe():
+    """The sweep's worker function (varint.sweep.compute_point) on a flowing scene: the largest growth rate."""
+    from varint.sweep import compute_point
+
+    below = compute_point(pipe_text(beta=0.2, u=5.4, nodes=21), "modes", count=8)
+    above = compute_point(pipe_text(beta=0.2, u=5.8, nodes=21), "modes", count=8)
+    assert below["status"] == "ok" and below["growth_rate"] < 0.0 < above["growth_rate"]
