@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from .errors import VarintError
 
 __all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "sparse_modes_of", "sparse_gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
-           "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl"]
+           "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl", "flowing_pipe_waves"]
 
 
 def _tube(model):
@@ -357,6 +357,28 @@ def spinning_shaft_whirl(k, rhoA, rhoI, rhoJp, EI, kGA, spin):
         pos = sorted(float(x.real) for x in roots if abs(x.imag) <= 1e-9 * abs(x) and x.real > 0)
         out.append(pos[0])
     return tuple(out)
+
+
+def flowing_pipe_waves(k, U, EI, kGA, rhoA, rhoI, M):
+    """The two bending-branch frequencies (complex, rad/s) of lateral waves w = W exp(i (k x - omega t)) on an
+    infinite straight Timoshenko pipe conveying a plug flow of speed ``U`` and mass ``M`` per length (rhoA: the
+    pipe's; rhoI: its rotary inertia; the fluid follows the centreline, Païdoussis vol. 1 §3.2, with shear):
+
+        (rhoA + M) w_tt + 2 M U w_xt + M U^2 w_xx - kGA (w_xx - psi_x) = 0,
+        rhoI psi_tt - EI psi_xx - kGA (w_x - psi) = 0.
+
+    Inserting the wave: [-(rhoA+M) om^2 + 2 M U k om - M U^2 k^2 + kGA k^2] (EI k^2 + kGA - rhoI om^2)
+    - kGA^2 k^2 = 0, a quartic whose two roots of least modulus are the bending branch (the others, near
+    sqrt(kGA / rhoI), the shear branch).  Sorted by real part.  The Euler–Bernoulli limit (kGA -> inf,
+    rhoI -> 0), -(rhoA+M) om^2 + 2 M U k om + EI k^4 - M U^2 k^2 = 0, has complex roots (one growing,
+    Im om > 0) above U^2 = (rhoA + M) EI k^2 / (rhoA M): the periodic pipe is stabilised by the Coriolis force
+    past the divergence speed U^2 = EI k^2 / M of the pinned pipe and loses stability by coupled-mode flutter.
+    """
+    p1 = np.array([-(rhoA + M), 2.0 * M * U * k, kGA * k * k - M * U * U * k * k])
+    p2 = np.array([-rhoI, 0.0, EI * k * k + kGA])
+    roots = np.roots(np.polysub(np.polymul(p1, p2), [kGA * kGA * k * k]))
+    low = sorted(roots, key=abs)[:2]
+    return tuple(sorted((complex(w) for w in low), key=lambda w: w.real))
 
 
 def spinning_free_rod_flap(EI, rhoA, L, spin, omega_max, samples=400):

@@ -36,6 +36,7 @@ from numba import njit
 
 from .errors import SolverError
 from .forces import Declaration, TipTorque, derive_invariants
+from .initial import shape_profile
 from .lie import cay, cay_inv
 
 __all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
@@ -180,6 +181,7 @@ class RodPart:
         #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
         self.node_mass = self.section.rhoA * self.w
         self.node_inertia = self.section.inertia[None, :] * self.w[:, None]
+        self.perturbations = rod.perturbation or []
         self._initial(rod.initial or {})
         self.steady_rotation = None
         if (rod.initial or {}).get("shape") == "steady_rotation":
@@ -204,6 +206,13 @@ class RodPart:
             r[j + 1] = r[j] + ds * np.linalg.solve(0.5 * (Lam[j] + Lam[j + 1]).T, CHI)
         self.velocity = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
         self.spin = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
+        #: rod.perturbation[]: node velocities added to the rigid motion, profiles along the reference arc length
+        self.velocity_perturbation = np.zeros((N + 1, 3))
+        s_nodes = ds * np.arange(N + 1)
+        for p in self.perturbations:
+            d = np.asarray(p.direction, dtype=float)
+            self.velocity_perturbation += shape_profile(p, s_nodes)[:, None] * (d / np.linalg.norm(d))[None, :]
+        self.velocity_perturbation *= self.mask[:, :3]  # a held node does not move
         self.set_configuration(Lam, r)
 
     @property
@@ -218,7 +227,7 @@ class RodPart:
         """Start from (Lam, r), moving rigidly with rod.initial velocity and angular velocity about its
         centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``), or
         at rest (``rest=True``: a static equilibrium)."""
-        v = self.velocity + np.cross(self.spin, r - self.centre_of_mass(r))
+        v = self.velocity + np.cross(self.spin, r - self.centre_of_mass(r)) + self.velocity_perturbation
         omega = np.einsum("nji,j->ni", Lam, self.spin)  # body angular velocity Lambda^T Omega
         if rest:
             v, omega = np.zeros_like(v), np.zeros_like(omega)

@@ -152,6 +152,13 @@ SCHEMA = MappingProxyType({
             "spinning with angular_velocity (stretched by the centrifugal loads, as varint static finds it)",
             choices=("given", "steady_rotation")),
     ),
+    "rod.perturbation[]": (
+        Key("field", "str", REQUIRED, "", "quantity perturbed: the nodes' initial velocity, added to rod.initial's rigid motion",
+            choices=("velocity",)),
+        Key("direction", "vec3", (0.0, 1.0, 0.0), "", "direction of the added velocity (normalised; a planar rod: in the x-y plane)"),
+    ) + tuple(k for k in SHAPE_KEYS if k.name not in ("field", "amplitude")) + (
+        Key("amplitude", "float", REQUIRED, "m/s", "added velocity at the profile's peak (s: the reference arc length)"),
+    ),
     "rod.load": (
         Key("force", "vec3", (0.0, 0.0, 0.0), "N", "dead force at s = L"),
         Key("torque", "vec3", (0.0, 0.0, 0.0), "N m", "dead (spatial) torque at s = L, by Lagrange-d'Alembert"),
@@ -418,9 +425,10 @@ class _Validator:
             rr = raw["rod"] if isinstance(raw["rod"], dict) else {}
             if not isinstance(raw["rod"], dict):
                 self.bad("rod", "must be a table")
-            rod = self.section({k: v for k, v in rr.items() if k not in ("ends", "initial", "load")}, "rod", "rod")
+            rod = self.section({k: v for k, v in rr.items() if k not in ("ends", "initial", "load", "perturbation")}, "rod", "rod")
             for sub in ("ends", "initial", "load"):
                 rod[sub] = self.section(rr.get(sub, {}), f"rod.{sub}", f"rod.{sub}")
+            rod["perturbation"] = self.array_of_tables(rr.get("perturbation"), "rod.perturbation[]", "rod.perturbation")
         initial = None
         if "initial" in raw:
             ri = raw["initial"] if isinstance(raw["initial"], dict) else {}
@@ -558,6 +566,14 @@ class _Validator:
         if sc.fluid is not None and (sc.fluid.ends.s0 == "periodic") != periodic:
             self.bad("fluid.ends", "a [fluid] on a [rod] is periodic exactly when the rod is (rod.ends and fluid.ends "
                      "both 'periodic', or neither)")
+        held = [e for e in (rod.ends.s0, rod.ends.sL) if e in ("clamped", "pinned")]
+        if (sc.fluid is not None and sc.fluid.model == "incompressible" and sc.wall is None
+                and sc.fluid.ends.s0 in ("closed", "periodic") and (periodic or len(held) == 2)
+                and not any(rod.initial.curvature)):
+            # the parcels' volumes fix the tube's length, which the supports (or the period) already fix at first order:
+            # the sum of the pressure multipliers is indeterminate and Newton's matrix singular (hydraulic lock)
+            self.bad("fluid.model", "an incompressible liquid in a rigid, closed tube that is straight and held at both "
+                     "ends (or periodic) has an indeterminate pressure: add a [wall] (e.g. model = 'quasistatic')")
         if sc.wall is not None and sc.fluid is None:
             self.bad("wall", "a [wall] on a [rod] needs a [fluid] in this version (without one the wall would couple to "
                      "the rod only through p_ext on the tube's volume, which is not implemented)")
@@ -602,6 +618,14 @@ class _Validator:
                 if out_of_plane:
                     what = "a z component" if kind == 2 else "x or y components"
                     self.bad(key, f"a planar rod (dimension = 2) moves in the x-y plane: this vector must not have {what}")
+        for i, p in enumerate(rod.perturbation):
+            kp = f"rod.perturbation[{i}]"
+            self.shape_checks(p, kp, L=None, allowed=("velocity",))
+            d = p.direction
+            if not any(d):
+                self.bad(f"{kp}.direction", "must not be zero")
+            elif rod.dimension == 2 and d[2] != 0.0:
+                self.bad(f"{kp}.direction", "a planar rod (dimension = 2) moves in the x-y plane: this vector must not have a z component")
         if sc.output.fields is not None:
             valid = ["rod"] + [g for g, on in (("fluid", sc.fluid is not None), ("wall", sc.wall is not None)) if on]
             for f in sc.output.fields:
