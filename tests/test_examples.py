@@ -23,6 +23,7 @@ STEPS = 20
 ENERGY_TOLERANCE = {
     "cantilever_rod": 2e-6,          # measured 1.9e-7
     "liquid_pulse_tube_law": 1e-7,   # 1.2e-8
+    "open_pipe_gas": 3e-9,           # energy_balance (E - E0 - fluxes): 3.0e-10
     "rigid_horn_gas": 3e-10,         # 2.6e-11
     "rubber_tube_pulse": 1.5e-9,     # 1.35e-10
     "spinning_shaft": 1e-12,         # 0 (a steady rotation)
@@ -34,8 +35,16 @@ DEFAULT_TOLERANCE = 2e-3
 RECORD0_TOLERANCE = 2e-3
 
 
-def _finite(name, value):
-    assert np.all(np.isfinite(np.asarray(value, dtype=float))), name
+def _finite(name, value, active=None):
+    """Every value finite; with open ends (docs/output.md) only the active slots: inactive ones are NaN."""
+    v = np.asarray(value, dtype=float)
+    field = "fluid/" in name and not name.endswith("fluid/active")
+    if active is not None and field and v.shape[-1] in (active.shape[-1], active.shape[-1] - 1):
+        a = np.asarray(active, dtype=bool)
+        a = a if v.shape[-1] == a.shape[-1] else a[..., 1:]  # parcel k is active with label k + 1
+        assert np.all(np.isnan(v[~a])), name
+        v = v[a]
+    assert np.all(np.isfinite(v)), name
 
 
 def step_example(path, steps=STEPS):
@@ -49,11 +58,13 @@ def step_example(path, steps=STEPS):
         mo = sim.monitors()
         for k, v in mo.items():
             _finite(f"{path.name}: monitor {k} at step {n}", v)
-        energies.append(mo["energy"])
+        # open ends (docs/theory.md §13.4): the energy is balanced against the boundary fluxes, not conserved
+        energies.append(mo["energy_balance"] if "energy_balance" in mo else mo["energy"])
         terms = [abs(float(v)) for k, v in mo.items() if k.startswith("energy_") or k == "kinetic_energy"]
         scale = max([scale] + terms)
-    for k, v in sim.fields().items():
-        _finite(f"{path.name}: field {k}", v)
+    fields = sim.fields()
+    for k, v in fields.items():
+        _finite(f"{path.name}: field {k}", v, fields.get("fluid/active"))
     return np.array(energies), scale, mo
 
 
@@ -85,4 +96,4 @@ def test_example_writes_a_readable_run_file(path, tmp_path):
     assert len(run["time"]) == 2 and run["time"][-1] == pytest.approx(steps * scene.time.step, rel=1e-12)
     assert run["fields"], path.name
     for k, v in list(run["fields"].items()) + list(run["monitors"].items()):
-        _finite(f"{path.name}: {k}", v)
+        _finite(f"{path.name}: {k}", v, run["fields"].get("fluid/active"))
