@@ -75,7 +75,7 @@ def test_flow_matrices_integrate_the_catmull_rom_weights_exactly():
     the integration by parts C1 + C1^T = [N N^T]_0^L that turns the Lagrangian's gyroscopic term and the two
     momentum fluxes into 2 U C1 (docs/theory.md §13.6)."""
     n, ds = 13, 0.25
-    Mf, C1, S, W = flow_matrices(n, ds, M=2.0)
+    Mf, C1, S, W = (x.toarray() if hasattr(x, "toarray") else x for x in flow_matrices(n, ds, M=2.0))
     s = np.arange(n) * ds
     L = s[-1]
     one = np.ones(n)

@@ -99,7 +99,8 @@ def pipe_parameters(model):
 def flow_matrices(n_nodes, ds, M=1.0):
     """(Mf, C1, S, W): M int N_i N_j, M int N_i N_j', M int N_i N_j'' and M int N_i over [0, L] for the
     Catmull-Rom weights of varint/coupled_geometry.py (closed ends: quadratic-extrapolation ghosts), exactly
-    (4 Gauss points per element); dense (n_nodes, n_nodes) and (n_nodes,)."""
+    (4 Gauss points per element); sparse (n_nodes, n_nodes) (a band of 3 each side: the 4-node stencil) and a
+    vector (n_nodes,)."""
     from .coupled_geometry import centreline_weights
 
     x, w = np.polynomial.legendre.leggauss(_GAUSS)
@@ -109,23 +110,18 @@ def flow_matrices(n_nodes, ds, M=1.0):
     nodes, N, dN, d2N = centreline_weights(s, n_nodes, ds)
     # dense weight matrices (points x nodes): a node may appear twice in a row (folded ghosts), so add
     rows = np.repeat(np.arange(len(s)), 4)
-    P = [sp.csr_matrix((a.ravel(), (rows, nodes.ravel())), shape=(len(s), n_nodes)).toarray() for a in (N, dN, d2N)]
-    Nq, dNq, d2Nq = P
-    Mf = M * (Nq * wq[:, None]).T @ Nq
-    C1 = M * (Nq * wq[:, None]).T @ dNq
-    S = M * (Nq * wq[:, None]).T @ d2Nq
-    W = M * Nq.T @ wq
-    return Mf, C1, S, W
+    Nq, dNq, d2Nq = (sp.csr_matrix((a.ravel(), (rows, nodes.ravel())), shape=(len(s), n_nodes)) for a in (N, dN, d2N))
+    NW = (sp.diags(M * wq) @ Nq).T.tocsr()
+    return (NW @ Nq).tocsr(), (NW @ dNq).tocsr(), (NW @ d2Nq).tocsr(), np.asarray(NW @ np.ones(len(s))).ravel()
 
 
 def _on_rod(A, rod):
-    """A node matrix (n_nodes^2) (x) I_3 on the translations, restricted to the rod's support mask (nz x nz)."""
-    n = rod.N + 1
+    """A node matrix (n_nodes^2) (x) I_3 on the translations, restricted to the rod's support mask (sparse nz x nz)."""
     E = np.zeros((6, 6))
     E[:3, :3] = np.eye(3)
     big = sp.kron(sp.csr_matrix(A), sp.csr_matrix(E)).tocsr()
     idx = np.flatnonzero(rod.mask.ravel())
-    return big[idx][:, idx].toarray() if n else None
+    return big[idx][:, idx].tocsr()
 
 
 def _flow_force(rod, r, S, W, g, U, lf=1.0):
@@ -153,7 +149,7 @@ def flowing_static(model, steps=4, tol=1e-10, max_iter=40, velocity=None):
     _, _, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
     U = par["U"] if velocity is None else float(velocity)
     g, mask = np.asarray(rod.g, dtype=float), rod.mask
-    Sz = sp.csr_matrix(_on_rod(S, rod))
+    Sz = _on_rod(S, rod)
     scale = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, rod.ds, 1.0)
 
     def newton_step(state, lf):
@@ -176,7 +172,7 @@ def flowing_linearization(model, about="initial", velocity=None):
 
     ``velocity``: the flow speed U (m/s) in place of the scene's inlet velocity (0 allowed: the tube full of
     liquid at rest, whose lateral inertia is the same M per length).
-    Returns a dict: ``M``, ``C``, ``K`` (dense nz x nz; K non-symmetric), ``Lam``, ``r`` (the base state),
+    Returns a dict: ``M``, ``C``, ``K`` (sparse nz x nz; C and K not symmetric), ``Lam``, ``r`` (the base state),
     ``parameters`` (:func:`pipe_parameters`) and ``unbalanced`` (the generalised force at the base state over the
     elastic force of a unit strain: ~0 at an equilibrium).
     """
@@ -193,15 +189,15 @@ def flowing_linearization(model, about="initial", velocity=None):
         Lam, r = rod.Lam0, rod.r0
     U = par["U"]
     Mf, C1, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
-    Kr = -_force_jacobian(rod, Lam, r).toarray()
-    Kr = 0.5 * (Kr + Kr.T)
-    Mz = np.diag(lumped_mass(rod)[rod.mask]) + _on_rod(Mf, rod)
-    C = 2.0 * U * _on_rod(C1, rod)
-    K = Kr + U * U * _on_rod(S, rod)
+    Kr = -_force_jacobian(rod, Lam, r)
+    Kr = (0.5 * (Kr + Kr.T)).tocsr()
+    Mz = sp.diags(lumped_mass(rod)[rod.mask]) + _on_rod(Mf, rod)
+    C = (2.0 * U * _on_rod(C1, rod)).tocsr()
+    K = (Kr + U * U * _on_rod(S, rod)).tocsr()
     force = (_potential_gradient(rod, Lam, r) + _flow_force(rod, r, S, W, np.asarray(rod.g, dtype=float), U))[rod.mask]
     unit = np.where(np.flatnonzero(rod.mask.ravel()) % 6 < 3, rod.ds, 1.0)
-    size = float(np.max(np.abs(np.diag(Kr)) * unit))
-    return {"M": 0.5 * (Mz + Mz.T), "C": C, "K": K, "Lam": Lam, "r": r, "parameters": par,
+    size = float(np.max(np.abs(Kr.diagonal()) * unit))
+    return {"M": (0.5 * (Mz + Mz.T)).tocsr(), "C": C, "K": K, "Lam": Lam, "r": r, "parameters": par,
             "unbalanced": float(np.max(np.abs(force))) / size if size > 0 else 0.0}
 
 
