@@ -91,11 +91,13 @@ def test_steady_flow_stays_steady_and_the_balances_close(model, inflow):
     assert eb < 1e-12 and pb < 1e-12 and mb < 1e-14, (eb, pb, mb)
 
 
-def test_pressure_driven_liquid_column_accelerates_as_a_rigid_column():
+@pytest.mark.parametrize("U0,dp,h", [(1.0, 500.0, 1e-3), (0.1, -500.0, 2e-3)], ids=["forward", "reversing"])
+def test_pressure_driven_liquid_column_accelerates_as_a_rigid_column(U0, dp, h):
     """Incompressible liquid in a rigid uniform tube, pressure inlet p_in, outlet p_out: every parcel moves
     with the column, dU/dt = (p_in - p_out) / (rho L).  The lattice holds exactly the parcels whose centres
-    are in the tube, whose mass is rho A L: the discrete column follows the analytic one to round-off."""
-    rho, U0, dp, h, steps = 1000.0, 1.0, 500.0, 1e-3, 400
+    are in the tube, whose mass is rho A L: the discrete column follows the analytic one to round-off.
+    Reversing: the flow turns back at t = 0.2 s; parcels then leave at the inlet and enter at the outlet."""
+    rho, steps = 1000.0, 400
     text = scene_text(model="incompressible", velocity=U0, density=rho, pressure=1000.0, parcels=200, h=h, radius=0.01,
                       nodes=11, ends=f', inflow = "pressure", inflow_pressure = {1000.0 + dp!r}, outflow_pressure = 1000.0')
     sim, mons, _ = run_steps(text, steps)

@@ -77,12 +77,20 @@ class Duct:
         F = self.F(s)
         return F[1:] - F[:-1]
 
+    def above(self, s_left, V):
+        """The label x > s_left with F(x) - F(s_left) = V (the downstream label of a new parcel of volume V)."""
+        return self._solve(float(self.F(s_left)) + V, s_left + V / float(self.A(s_left)))
+
     def below(self, s_right, V):
         """The label x < s_right with F(s_right) - F(x) = V (the upstream label of a new parcel of volume V)."""
         if self.uniform:
             return s_right - V / self.A_in
-        target = float(self.F(s_right)) - V
-        x = s_right - V / float(self.A(s_right))
+        return self._solve(float(self.F(s_right)) - V, s_right - V / float(self.A(s_right)))
+
+    def _solve(self, target, x):
+        """x with F(x) = target, by Newton from x."""
+        if self.uniform:
+            return target / self.A_in
         for _ in range(50):  # Newton on the monotone, C^1 F (quadratic convergence inside an element)
             dx = (float(self.F(x)) - target) / float(self.A(x))
             x -= dx

@@ -889,9 +889,11 @@ class Simulation:
         t = m.tube
         q, p, v, lam = st.q.copy(), st.p.copy(), st.v.copy(), st.lam.copy()
         changed = False
-        while True:
+        done = set()  # what this update did at each end: it never undoes it (no injection/removal ping-pong)
+        for _ in range(4 * t.M_max + 8):
             labels = np.concatenate([[t.piston], q]) if t.n_fixed else q
-            if labels[0] >= 0.5 * t.ell_in:  # inject
+            if labels[0] >= 0.5 * t.ell_in and "out@0" not in done:  # inject
+                done.add("in@0")
                 V_in = t.V_in
                 if t.n_fixed and t.eos is not None:
                     # a velocity inlet prescribes U_in and the entering entropy; the new parcel enters at the pressure
@@ -918,7 +920,44 @@ class Simulation:
                 t.balance[3:] += [dE, dP, t.m_in]
                 changed = True
                 continue
-            if len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L:  # remove the last parcel and label
+            if not t.n_fixed and len(t.m) > 2 and 0.5 * (labels[0] + labels[1]) < 0.0 and "in@0" not in done:
+                done.add("out@0")
+                # backflow at a pressure inlet: the first parcel's centre has left the tube upstream; it leaves
+                ml, mp = 0.5 * t.m[0], 0.5 * (t.m[0] + t.m[1])
+                vl, vp = p[0] / ml, p[1] / mp
+                V_first = float(t.duct.volumes(labels[:2])[0])
+                psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_first]), t.m[:1], t.S[:1])[0])
+                dm = mp - 0.5 * t.m[1]
+                dP, dE = p[0] + dm * vp, 0.5 * ml * vl ** 2 + 0.5 * dm * vp ** 2 + psi
+                p[1] = 0.5 * t.m[1] * vp
+                q, p, v = q[1:], p[1:], v[1:]
+                if t.incompressible:
+                    lam = lam[1:]
+                t.balance[3:] -= [dE, dP, t.m[0]]
+                t.m, t.S = t.m[1:].copy(), t.S[1:].copy()
+                changed = True
+                continue
+            if labels[-1] < t.L - 0.5 * t.ell_in and "out@L" not in done:
+                done.add("in@L")
+                # backflow at the outlet: fluid is drawn in from outside at the outlet pressure (with the entropy of the
+                # parcel it joins), half to the last label, half to a new last label, both at the last label's velocity
+                S_new = t.S[-1]
+                rho_new = t.rho0 if t.incompressible else float(t.eos.density(t.p_out, S_new))
+                m_new = rho_new * t.duct.A_out * t.ell_in
+                V_new = m_new / rho_new
+                s_new = t.duct.above(labels[-1], V_new)
+                psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([m_new]), np.array([S_new]))[0])
+                vl = p[-1] / (0.5 * t.m[-1])
+                p[-1] = 0.5 * (t.m[-1] + m_new) * vl
+                q, p, v = np.r_[q, s_new], np.r_[p, 0.5 * m_new * vl], np.r_[v, v[-1]]
+                if t.incompressible:
+                    lam = np.r_[lam, lam[-1]]
+                t.m, t.S = np.r_[t.m, m_new], np.r_[t.S, S_new]
+                t.balance[3:] += [0.5 * m_new * vl ** 2 + psi, m_new * vl, m_new]
+                changed = True
+                continue
+            if len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L and "in@L" not in done:  # remove the last parcel
+                done.add("out@L")
                 ml, mp = 0.5 * t.m[-1], 0.5 * (t.m[-2] + t.m[-1])
                 vl, vp = p[-1] / ml, p[-2] / mp
                 V_last = float(t.duct.volumes(labels[-2:])[0])
@@ -935,6 +974,9 @@ class Simulation:
                 changed = True
                 continue
             break
+        else:
+            raise SolverError(f"{self._where(st.n)}: the open tube's ends changed more than {4 * t.M_max + 8} parcels in one "
+                              "step; reduce time.step", step=st.n, time=st.t)
         if changed:
             if len(t.m) > t.M_max:
                 raise SolverError(f"{self._where(st.n)}: the open tube holds {len(t.m)} parcels, more than the run file's "
