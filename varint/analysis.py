@@ -373,6 +373,11 @@ def flowing_pipe_waves(k, U, EI, kGA, rhoA, rhoI, M):
     rhoI -> 0), -(rhoA+M) om^2 + 2 M U k om + EI k^4 - M U^2 k^2 = 0, has complex roots (one growing,
     Im om > 0) above U^2 = (rhoA + M) EI k^2 / (rhoA M): the periodic pipe is stabilised by the Coriolis force
     past the divergence speed U^2 = EI k^2 / M of the pinned pipe and loses stability by coupled-mode flutter.
+    ``M`` is the fluid mass per reference length (rho_f A); the centrifugal term acts on the centreline slope
+    w_x, not on the frame angle psi (the fluid follows the centreline).  The relation is linear and holds for a
+    closed periodic loop too (Kelvin's circulation in place of a pumped U gives the same quadratic form,
+    docs/theory.md §10.11); a closed loop with a stiff wall leaves the linear range early, the pressure drop of
+    the lengthened loop acting as a tension (ibid.).
     """
     p1 = np.array([-(rhoA + M), 2.0 * M * U * k, kGA * k * k - M * U * U * k * k])
     p2 = np.array([-rhoI, 0.0, EI * k * k + kGA])
