@@ -211,3 +211,38 @@ def test_what_is_not_available_is_one_line(extra, key):
 def test_a_step_moving_the_inflow_more_than_half_a_parcel_is_refused():
     with pytest.raises(SolverError, match=r"^time.step: the inflow moves"):
         varint.make_simulation(varint.build_model(parse_scene(scene_text(h=2e-3))))
+
+
+@pytest.mark.parametrize("model", ["ideal-gas", "incompressible"])
+def test_open_terms_gradient_and_hessian_against_differences(model):
+    """The extended duct's potential terms (labels straddling both ends of a horn): gradient against central
+    differences of the energy, Hessian against differences of the gradient."""
+    from varint.terms import Config
+
+    horn = "area_table = [[0.0, 1.2566e-3], [0.5, 2.5e-3], [1.0, 3.0e-3]]"
+    density = 1.2 if model == "ideal-gas" else 1000.0
+    t = varint.build_model(parse_scene(scene_text(model=model, density=density, parcels=12, nodes=5, radius=0.03,
+                                                  tube_extra=horn, h=1e-5))).tube
+    rng = np.random.default_rng(3)
+    s = np.linspace(-0.04, 1.05, t.M + 1) + rng.uniform(-0.01, 0.01, t.M + 1)
+    mu = rng.uniform(9e4, 1.1e5, t.M) if model == "incompressible" else None
+    n = t.nconfig
+
+    def cfg_of(c):
+        return Config(c[: t.M + 1], t.R_reference, c[t.index["mu"]:] if mu is not None else None)
+
+    c = np.concatenate([s, t.R_reference] + ([mu] if mu is not None else []))
+    U = lambda c: sum(term.energy(cfg_of(c), {}) for term in t.terms)  # noqa: E731
+    grad = lambda c: t.gradient(cfg_of(c))  # noqa: E731
+    g = grad(c)
+    H = t.hessian(cfg_of(c)).toarray()
+    free = [i for i in range(n) if not (t.index["R"] <= i < t.index["mu"])]  # the radii are data here
+    for i in free:
+        e = np.zeros(n)
+        step = 1e-7 if i <= t.M else 1e-2
+        e[i] = step
+        fd = (U(c + e) - U(c - e)) / (2 * step)
+        assert abs(fd - g[i]) <= 1e-6 * max(abs(g[i]), 1e-3 * np.max(np.abs(g[: t.M + 1]))), (i, fd, g[i])
+        col = (grad(c + e) - grad(c - e)) / (2 * step)
+        scale = np.max(np.abs(H[np.ix_(free, free)])) + 1e-300
+        assert np.max(np.abs(col[free] - H[free, i])) <= 1e-5 * scale, i
