@@ -264,3 +264,18 @@ def test_sparse_eigensolver_matches_the_dense_one(ends, u):
         assert abs(x["frequency"] - y["frequency"]) < 1e-7 * scale
         assert abs(x["growth_rate"] - y["growth_rate"]) < 1e-7 * scale
     assert max(m["growth_rate"] for m in a) > 0.0
+
+
+def test_cli_modes_of_a_hanging_pipe_about_its_steady_state(tmp_path):
+    """Gravity along the pipe: about the initial state ``varint modes`` says the state is not in equilibrium;
+    ``--about static`` linearises about the steady state (no note) and finds the hanging pipe's flutter above
+    pipe_stability's u_c (gamma = 10, beta = 0.2: 6.34) and not below."""
+    out = []
+    for u, about in ((6.2, "initial"), (6.2, "static"), (6.5, "static")):
+        scene = tmp_path / f"hanging_{u}.toml"
+        scene.write_text(pipe_text(beta=0.2, u=u, nodes=21, gamma=10.0))
+        out.append(json.loads(subprocess.run([sys.executable, "-m", "varint", "modes", str(scene), "-n", "6", "--json",
+                                              "--about", about], capture_output=True, text=True, check=True).stdout))
+    assert "environment.gravity" in out[0]["note"] and "--about static" in out[0]["note"]
+    assert "note" not in out[1] and out[1]["flow"]["gamma"] == pytest.approx(10.0)
+    assert max(m["growth_rate"] for m in out[1]["modes"]) < 0.0 < max(m["growth_rate"] for m in out[2]["modes"])
