@@ -223,3 +223,115 @@ class EndPressures(Force):
         if i0 is not None:
             d.tube_q[i0] += f0
         d.tube_q[i1] += f1
+
+
+class ExtendedLattice:
+    """A dynamic wall's lattice extended by ``E`` elements beyond each end, with the padded nodes' radii those of the
+    end nodes (R_{-j} = R_0, R_{N+j} = R_N): the linear interpolant is then the end's constant section outside the
+    tube, and the lattice kernels of varint.geometry give the parcels' volumes on the extended line, with the
+    outside parts' dependence on R_0 and R_N.  Labels are shifted by E ds into the kernels' coordinates; gradients
+    and Hessians with respect to the padded radii are folded back onto the end nodes (the chain rule of the tie)."""
+
+    def __init__(self, N, ds, E):
+        self.N, self.ds, self.E = int(N), float(ds), int(E)
+        self.shift = self.E * self.ds
+        self.node_map = np.concatenate([np.zeros(self.E, np.int64), np.arange(self.N + 1), np.full(self.E, self.N)])
+
+    def pad(self, R):
+        return np.asarray(R, dtype=np.float64)[self.node_map]
+
+    def fold(self, g_ext):
+        g = np.zeros(self.N + 1)
+        np.add.at(g, self.node_map, g_ext)
+        return g
+
+    def remap(self, idx, nlab, offset_R):
+        """Configuration indices of the extended problem (labels 0..nlab-1, then extended nodes) -> the tube's
+        (labels, then the real nodes from ``offset_R``)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        node = idx >= nlab
+        out = idx.copy()
+        out[node] = offset_R + self.node_map[idx[node] - nlab]
+        return out
+
+
+class _WallParcelTerm:
+    """Parcel terms on the extended lattice of a dynamic wall (varint.geometry kernels, labels and radii unknown)."""
+
+    touches = ("s", "R")
+    breaks = frozenset({"axial_momentum"})
+
+    def __init__(self, ext):
+        self.ext = ext
+
+    def _args(self, cfg):
+        return cfg.s + self.ext.shift, self.ext.pad(cfg.R)
+
+    def volumes(self, cfg, cache):
+        if "V" not in cache:
+            from .geometry import parcel_volumes
+
+            s, R = self._args(cfg)
+            cache["V"] = parcel_volumes(s, R, self.ext.ds, False, check=False)
+        return cache["V"]
+
+    def _derivs(self, cfg, c1, c2, hessian):
+        from .geometry import parcel_derivatives
+
+        s, R = self._args(cfg)
+        return parcel_derivatives(s, R, self.ext.ds, False, c1, c2, True, hessian, check=False)
+
+    def _remap_coo(self, coo, nlab, index):
+        r, c, v = coo
+        return self.ext.remap(r, nlab, index["R"]), self.ext.remap(c, nlab, index["R"]), v
+
+
+class WallInternalEnergy(_WallParcelTerm):
+    """sum_k m_k e(m_k / V_k, S_k) on the extended lattice of a dynamic wall."""
+
+    name = "internal"
+
+    def __init__(self, ext, eos, m, S):
+        super().__init__(ext)
+        self.eos, self.m, self.S = eos, m, S
+
+    def energy(self, cfg, cache):
+        return float(np.sum(self.eos.psi(self.volumes(cfg, cache), self.m, self.S)))
+
+    def gradient(self, cfg, cache, gs, gR, gmu):
+        d1, d2 = self.eos.dpsi(self.volumes(cfg, cache), self.m, self.S)
+        a, b, _, _ = self._derivs(cfg, d1, d2, False)
+        gs += a
+        gR += self.ext.fold(b)
+
+    def hessian(self, cfg, cache, index):
+        d1, d2 = self.eos.dpsi(self.volumes(cfg, cache), self.m, self.S)
+        _, _, H, _ = self._derivs(cfg, d1, d2, True)
+        return self._remap_coo(H, len(cfg.s), index)
+
+
+class WallIncompressibility(_WallParcelTerm):
+    """-sum_k mu_k (V_k - V0_k) on the extended lattice of a dynamic wall."""
+
+    name = "incompressibility"
+    touches = ("s", "R", "mu")
+
+    def __init__(self, ext, V0):
+        super().__init__(ext)
+        self.V0 = V0
+
+    def energy(self, cfg, cache):
+        return -float(np.dot(cfg.mu, self.volumes(cfg, cache) - self.V0))
+
+    def gradient(self, cfg, cache, gs, gR, gmu):
+        a, b, _, _ = self._derivs(cfg, -cfg.mu, np.zeros_like(cfg.mu), False)
+        gs += a
+        gR += self.ext.fold(b)
+        gmu -= self.volumes(cfg, cache) - self.V0
+
+    def hessian(self, cfg, cache, index):
+        _, _, H, (jr, jc, jv) = self._derivs(cfg, -cfg.mu, np.zeros_like(cfg.mu), True)
+        r, c, v = self._remap_coo(H, len(cfg.s), index)
+        jc = self.ext.remap(jc, len(cfg.s), index["R"])
+        jr = np.asarray(jr, dtype=np.int64) + index["mu"]
+        return np.concatenate([r, jr, jc]), np.concatenate([c, jc, jr]), np.concatenate([v, -jv, -jv])

@@ -243,9 +243,9 @@ def _refuse_open(model, scheme):
     if model.rod is not None:
         raise SolverError("fluid.ends: time integration of open ends on a [rod] (the coupled tube) is not available in "
                           "this version; the straight tube (no [rod]) runs, and `varint modes` linearises the flowing tube")
-    if t.has_wall:
-        raise SolverError("fluid.ends: open ends with a [wall] are not available in this version; the rigid tube "
-                          "(no [wall]: uniform, or tube.area_table) runs")
+    if t.has_wall and not t.wall_dynamic:
+        raise SolverError("fluid.ends: open ends with a quasistatic [wall] are not available in this version; a rigid "
+                          "tube or a dynamic wall runs")
     if t.gx != 0.0:
         raise SolverError("environment.gravity: gravity along a tube with open ends is not available in this version")
     if getattr(sc, "shock_capturing", None) is not None:
@@ -842,7 +842,8 @@ class Simulation:
         cfg = self._open_config(q, lam)
         K = 0.5 * float(np.sum(p * p / t.mass))
         pot = t.energies(cfg)
-        return K + sum(pot.values()), K, pot, float(np.sum(p)), t.fluid_mass(cfg), cfg
+        P = float(np.sum(p[t.layout["s"]]))  # the labels' (a wall's radial momenta are not axial)
+        return K + sum(pot.values()), K, pot, P, t.fluid_mass(cfg), cfg
 
     def _open_start(self):
         """t = 0: the balances' reference values, then the ends' rule applied to the initial lattice."""
@@ -887,22 +888,34 @@ class Simulation:
         level velocities, their masses become those of the new lattice (half a parcel at each end)."""
         m = self.model
         t = m.tube
-        q, p, v, lam = st.q.copy(), st.p.copy(), st.v.copy(), st.lam.copy()
+        ns = t.layout["s"].stop  # the free labels; a dynamic wall's radii follow them in q, p, v and do not change
+        q, p, v, lam = st.q[:ns].copy(), st.p[:ns].copy(), st.v[:ns].copy(), st.lam.copy()
+        qR, pR, vR = st.q[ns:], st.p[ns:], st.v[ns:]
+        R_level = t.c0[t.index["R"]:t.index["R"] + t.nR].copy()
+        if t.has_wall:
+            R_level[1:-1] += qR
+        duct = t.duct_at(R_level)
+        # the ends' thresholds: a rigid tube keeps the parcels whose centres are inside, a dynamic wall's tube full
+        in_at = 0.0 if t.filled else 0.5 * t.ell_in
+        back_at = 0.0 if t.filled else 0.5 * t.ell_in
         changed = False
         done = set()  # what this update did at each end: it never undoes it (no injection/removal ping-pong)
         for _ in range(4 * t.M_max + 8):
             labels = np.concatenate([[t.piston], q]) if t.n_fixed else q
-            if labels[0] >= 0.5 * t.ell_in and "out@0" not in done:  # inject
+            # a full tube injects before the first label would enter it in the next step (its velocity: the piston's, or
+            # the first label's last one), so that no wall is ever left without fluid inside
+            ahead = self.h * (t.U_in if t.n_fixed else max(float(v[0]), 0.0)) if t.filled else 0.0
+            if labels[0] + ahead >= in_at and "out@0" not in done:  # inject
                 done.add("in@0")
                 V_in = t.V_in
                 if t.n_fixed and t.eos is not None:
                     # a velocity inlet prescribes U_in and the entering entropy; the new parcel enters at the pressure
                     # of the parcel it joins (the outgoing characteristic's): its volume follows, its mass is m_in
-                    V0 = float(t.duct.volumes(labels[:2])[0])
+                    V0 = float(duct.volumes(labels[:2])[0])
                     p_adj = t.eos.pressure(t.m[0] / V0, t.S[0])
                     V_in = t.m_in / float(t.eos.density(p_adj, t.S_in))
-                s_new = t.duct.below(labels[0], V_in)
-                V_new = float(t.duct.volumes(np.array([s_new, labels[0]]))[0])
+                s_new = duct.below(labels[0], V_in)
+                V_new = float(duct.volumes(np.array([s_new, labels[0]]))[0])
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([t.m_in]), np.array([t.S_in]))[0])
                 if t.n_fixed:  # the piston is released with its level momentum mbar U_in; a new piston upstream
                     mb = 0.5 * (t.m_in + t.m[0])
@@ -920,12 +933,13 @@ class Simulation:
                 t.balance[3:] += [dE, dP, t.m_in]
                 changed = True
                 continue
-            if not t.n_fixed and len(t.m) > 2 and 0.5 * (labels[0] + labels[1]) < 0.0 and "in@0" not in done:
+            first_out = labels[1] < 0.0 if t.filled else 0.5 * (labels[0] + labels[1]) < 0.0
+            if not t.n_fixed and len(t.m) > 2 and first_out and "in@0" not in done:
                 done.add("out@0")
                 # backflow at a pressure inlet: the first parcel's centre has left the tube upstream; it leaves
                 ml, mp = 0.5 * t.m[0], 0.5 * (t.m[0] + t.m[1])
                 vl, vp = p[0] / ml, p[1] / mp
-                V_first = float(t.duct.volumes(labels[:2])[0])
+                V_first = float(duct.volumes(labels[:2])[0])
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_first]), t.m[:1], t.S[:1])[0])
                 dm = mp - 0.5 * t.m[1]
                 dP, dE = p[0] + dm * vp, 0.5 * ml * vl ** 2 + 0.5 * dm * vp ** 2 + psi
@@ -937,15 +951,15 @@ class Simulation:
                 t.m, t.S = t.m[1:].copy(), t.S[1:].copy()
                 changed = True
                 continue
-            if labels[-1] < t.L - 0.5 * t.ell_in and "out@L" not in done:
+            if labels[-1] < t.L - back_at and "out@L" not in done:
                 done.add("in@L")
                 # backflow at the outlet: fluid is drawn in from outside at the outlet pressure (with the entropy of the
                 # parcel it joins), half to the last label, half to a new last label, both at the last label's velocity
                 S_new = t.S[-1]
                 rho_new = t.rho0 if t.incompressible else float(t.eos.density(t.p_out, S_new))
-                m_new = rho_new * t.duct.A_out * t.ell_in
+                m_new = rho_new * duct.A_out * t.ell_in
                 V_new = m_new / rho_new
-                s_new = t.duct.above(labels[-1], V_new)
+                s_new = duct.above(labels[-1], V_new)
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([m_new]), np.array([S_new]))[0])
                 vl = p[-1] / (0.5 * t.m[-1])
                 p[-1] = 0.5 * (t.m[-1] + m_new) * vl
@@ -956,11 +970,12 @@ class Simulation:
                 t.balance[3:] += [0.5 * m_new * vl ** 2 + psi, m_new * vl, m_new]
                 changed = True
                 continue
-            if len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L and "in@L" not in done:  # remove the last parcel
+            last_out = labels[-2] >= t.L if t.filled else 0.5 * (labels[-2] + labels[-1]) >= t.L
+            if len(t.m) > 2 and last_out and "in@L" not in done:  # remove the last parcel
                 done.add("out@L")
                 ml, mp = 0.5 * t.m[-1], 0.5 * (t.m[-2] + t.m[-1])
                 vl, vp = p[-1] / ml, p[-2] / mp
-                V_last = float(t.duct.volumes(labels[-2:])[0])
+                V_last = float(duct.volumes(labels[-2:])[0])
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_last]), t.m[-1:], t.S[-1:])[0])
                 dm = mp - 0.5 * t.m[-2]
                 dP = p[-1] + dm * vp
@@ -982,7 +997,7 @@ class Simulation:
                 raise SolverError(f"{self._where(st.n)}: the open tube holds {len(t.m)} parcels, more than the run file's "
                                   f"{t.M_max} slots (the gas compressed more than twofold); use fewer fluid.parcels",
                                   step=st.n, time=st.t)
-            st.q, st.p, st.v, st.lam, st.q_prev = q, p, v, lam, None
+            st.q, st.p, st.v, st.lam, st.q_prev = np.r_[q, qR], np.r_[p, pR], np.r_[v, vR], lam, None
             t._open_build()
             self._rebuild()
         elif t.n_fixed:
@@ -994,7 +1009,10 @@ class Simulation:
         t = m.tube
         E, K, pot, P, mass, cfg = self._open_energy(st)
         E0, P0, mass0, fE, fP, fm = t.balance
-        out = {"kinetic_energy": K, "energy_fluid_kinetic": K, "energy_wall_kinetic": 0.0}
+        p = st.p[m.tube_p]
+        ns = t.layout["s"].stop
+        Kw = 0.5 * float(np.sum(p[ns:] ** 2 / t.mass[ns:]))
+        out = {"kinetic_energy": K, "energy_fluid_kinetic": K - Kw, "energy_wall_kinetic": Kw}
         for k, val in pot.items():
             out[f"energy_{k}"] = val
         out["energy"] = E
@@ -1024,13 +1042,18 @@ class Simulation:
         M, Mx = t.M, t.M_max
         rho = t.density(cfg)
         pressure = lam.copy() if t.incompressible else t.eos.pressure(rho, t.S)
-        u = p / t.mass
+        ns = t.layout["s"].stop
+        u = p[:ns] / t.mass[:ns]
         if t.n_fixed:
             u = np.r_[t.U_in, u]
         lab = lambda x: np.r_[x, np.full(Mx + 1 - len(x), np.nan)]  # noqa: E731
         par = lambda x: np.r_[x, np.full(Mx - len(x), np.nan)]  # noqa: E731
-        return {"fluid/s": lab(cfg.s.copy()), "fluid/density": par(rho), "fluid/pressure": par(pressure),
-                "fluid/velocity": lab(u), "fluid/entropy": par(t.S.copy()), "fluid/active": t.active_mask()}
+        out = {"fluid/s": lab(cfg.s.copy()), "fluid/density": par(rho), "fluid/pressure": par(pressure),
+               "fluid/velocity": lab(u), "fluid/entropy": par(t.S.copy()), "fluid/active": t.active_mask()}
+        if t.has_wall:
+            out["wall/R"] = cfg.R.copy()
+            out["wall/velocity"] = np.r_[0.0, st.v[m.tube_p][ns:], 0.0]  # the end nodes are held
+        return out
 
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""

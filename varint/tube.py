@@ -96,7 +96,7 @@ class TubePart:
         self.forces = []
         #: open ends on the fixed straight centreline with a rigid wall (docs/theory.md §13): a varying set of labels
         #: (varint.open_ends); with a [wall] (not yet) the closed layout is built and the stepper refuses the run
-        self.open = self.open_ends and not self.coupled and not self.has_wall
+        self.open = self.open_ends and not self.coupled and (not self.has_wall or self.wall_dynamic)
         if self.open:
             self._open_init()
         else:
@@ -190,9 +190,14 @@ class TubePart:
         self.nR = self.N + 1
         R = np.full(self.nR, self.R0)
         self.node_s = np.arange(self.nR) * self.ds
-        if sc.tube.area_table is not None:
+        if sc.tube.area_table is not None and not self.has_wall:
             tab = np.array(sc.tube.area_table)
             R = np.sqrt(np.interp(self.node_s, tab[:, 0], tab[:, 1]) / math.pi)
+        if self.has_wall:
+            for pert in sc.wall.perturbation:
+                R = R + shape_profile(pert, self.node_s)
+            if np.any(R <= 0):
+                raise ValueError("wall.perturbation: makes the radius non-positive somewhere")
         self.R_reference = R
         w = np.full(self.nR, self.ds)
         w[0] = w[-1] = 0.5 * self.ds
@@ -204,6 +209,12 @@ class TubePart:
             rho_in = float(self.eos.density(self.p_in))  # a barotropic liquid's density follows from the inlet pressure
         self.rho_in = rho_in
         self.ell_in = self.L / self.M
+        if self.has_wall:
+            from .open_ends import ExtendedLattice
+
+            # a dynamic wall (docs/theory.md §13.1): the kernels on the lattice extended beyond each end, far enough for
+            # the labels of the end parcels (a label beyond it stops the run: "left the tube")
+            self.ext = ExtendedLattice(self.N, self.ds, int(math.ceil(4.0 * self.ell_in / self.ds)) + 1)
         self.V_in = self.duct.A_in * self.ell_in
         self.m_in = rho_in * self.V_in
         self.S_in = float(self.eos.entropy(rho_in, self.p_in)) if self.eos is not None and self.eos.has_entropy else 0.0
@@ -218,6 +229,9 @@ class TubePart:
         self.S = f.entropy(centres)
         u = f.velocity(s)
         self.piston = float(s[0])  #: the prescribed first label's position at the level (velocity inlet)
+        #: the ends' rule (docs/theory.md §13.2-13.3): a rigid tube holds the parcels whose centres are in it; a dynamic
+        #: wall's is kept full (the first label at or before s = 0, the last at or beyond L: no wall without fluid)
+        self.filled = self.has_wall
         #: accumulated balances: E0, P0, mass0 (set by the stepper at t = 0), then the boundary fluxes of energy,
         #: axial momentum and mass summed over the run (docs/theory.md §13.4)
         self.balance = np.zeros(6)
@@ -226,8 +240,9 @@ class TubePart:
         self.terms = []
         self._open_build()
         nf = self.n_fixed
-        self.q_init = s[nf:].copy()
-        self.v_init = u[nf:].copy()
+        zR = np.zeros(self.nR - 2 if self.has_wall else 0)  # the interior radii: displacements from R_reference
+        self.q_init = np.concatenate([s[nf:], zR])
+        self.v_init = np.concatenate([u[nf:], zR])
         self.p_init = self.mass * self.v_init
         self.lam_init = np.full(self.M, float(sc.fluid.pressure)) if self.incompressible else np.zeros(0)
 
@@ -238,22 +253,30 @@ class TubePart:
 
     def _open_build(self):
         """Layout, B, c0, masses and terms of the current open lattice (labels 0..M, the first n_fixed prescribed)."""
-        from .open_ends import OpenIncompressibility, OpenInternalEnergy
+        from .open_ends import OpenIncompressibility, OpenInternalEnergy, WallIncompressibility, WallInternalEnergy
 
         self.M = M = len(self.m)
         nf, nR = self.n_fixed, self.nR
         nlab = M + 1
         self.index = {"s": 0, "R": nlab, "mu": nlab + nR}
         self.nconfig = nlab + nR + (M if self.incompressible else 0)
-        self.nq = nlab - nf
-        blocks = {"s": slice(0, self.nq)}
+        ns = nlab - nf
+        # a dynamic wall's end nodes are held at the reference radius (the tube is fitted to rigid pipes at its open
+        # ends): only the interior radii are unknowns
+        self.nq = ns + (nR - 2 if self.has_wall else 0)
+        blocks = {"s": slice(0, ns)}
+        if self.has_wall:
+            blocks["R"] = slice(ns, ns + nR - 2)
         if self.incompressible:
             blocks["mu"] = slice(self.nq, self.nq + M)
         self.nz = self.nq + (M if self.incompressible else 0)
         self.nlam = self.nz - self.nq
         self.layout = blocks
         rows = [np.arange(nf, nlab)]
-        cols = [np.arange(self.nq)]
+        cols = [np.arange(ns)]
+        if self.has_wall:
+            rows.append(self.index["R"] + np.arange(1, nR - 1))
+            cols.append(ns + np.arange(nR - 2))
         if self.incompressible:
             rows.append(self.index["mu"] + np.arange(M))
             cols.append(self.nq + np.arange(M))
@@ -267,12 +290,29 @@ class TubePart:
         self.label_mass_config = mb
         self.label_mass_all = mb
         self.mass = mb[nf:].copy()
+        if self.has_wall:
+            self.mass = np.concatenate([self.mass, self.wall.a * self.node_weights[1:-1]])
         if self.incompressible:
             self.V0 = self.m / self.rho0
-            self.terms = [OpenIncompressibility(self.duct, self.V0)]
+            self.terms = [WallIncompressibility(self.ext, self.V0) if self.has_wall else OpenIncompressibility(self.duct, self.V0)]
         else:
-            self.terms = [OpenInternalEnergy(self.duct, self.eos, self.m, self.S)]
+            self.terms = [WallInternalEnergy(self.ext, self.eos, self.m, self.S) if self.has_wall
+                          else OpenInternalEnergy(self.duct, self.eos, self.m, self.S)]
+        if self.has_wall:  # the wall's own terms on the real nodes (varint.terms), as on a closed tube
+            w = self.wall
+            if w.law == "linear":
+                self.terms.append(T.WallLinear(self.ds, self.node_weights, False, w.beta1, w.beta2, self.R0))
+            else:
+                self.terms.append(T.WallTubeLaw(self.ds, self.node_weights, False, w.stiffness, w.tension, self.R0))
+            if self.p_ext != 0.0:
+                self.terms.append(T.ExternalPressure(self.ds, False, self.p_ext))
         self.lattice_version += 1
+
+    def duct_at(self, R):
+        """The duct of nodal radii ``R`` (the rigid tube's own; a dynamic wall's at a level)."""
+        from .open_ends import Duct
+
+        return Duct(R, self.ds) if self.has_wall else self.duct
 
     def active_mask(self):
         """Which of the M_max + 1 label slots hold a label (slot k: the k-th label from the upstream end)."""
@@ -445,7 +485,9 @@ class TubePart:
         """
         if not self.has_fluid:
             return None
-        if self.open:  # the extended line: finite, increasing labels
+        if self.open:  # the extended line: finite, increasing labels (a wall's: within its extended lattice)
+            if self.has_wall:
+                return label_problem(cfg.s + self.ext.shift, self.nR + 2 * self.ext.E, self.ds, False)
             return label_problem(cfg.s, self.nR, self.ds, False, tube=False)
         return label_problem(cfg.s, self.nR, self.ds, self.periodic)
 
@@ -495,7 +537,7 @@ class TubePart:
 
     def volumes(self, cfg):
         if self.open:
-            return self.duct.volumes(cfg.s)
+            return self.terms[0].volumes(cfg, {})
         return parcel_volumes(cfg.s, cfg.R, self.ds, self.periodic)
 
     def density(self, cfg, V=None):
