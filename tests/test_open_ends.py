@@ -193,6 +193,11 @@ def test_run_file_layout_fixed_slots_nan_and_mask(tmp_path):
     assert np.array_equal(npar, mon["parcels"].values)
     for k in range(len(npar)):
         assert np.all(np.isfinite(ds["pressure"].values[k, :npar[k]])) and np.all(np.isnan(ds["pressure"].values[k, npar[k]:]))
+    from varint.io import summary
+
+    info = summary(out)  # `varint info`: the balances, not the conservation errors
+    assert info["momentum_balance_relative"] < 1e-10 and info["mass_balance_relative"] < 1e-14
+    assert info["energy_balance_relative"] < 1e-6 and info["parcels"][1] >= 20
     paths = plot_run(str(out), str(tmp_path))
     assert paths and all(p.exists() if hasattr(p, "exists") else True for p in paths)
 

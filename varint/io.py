@@ -423,6 +423,15 @@ def summary(path):
         d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)
         d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300)) if "mass" in mon else None
         d["newton_iterations_max"] = int(np.max(mon["newton_iterations"])) if "newton_iterations" in mon else None
+        if "energy_balance" in mon:  # open ends (docs/theory.md §13.4): the balances against the boundary fluxes
+            for kind, val, flux in (("energy", mon["energy"], mon["energy_flux"]),
+                                    ("momentum", mon["linear_momentum"][:, 0], mon["momentum_flux"][:, 0]),
+                                    ("mass", mon["mass"], mon["mass_flux"])):
+                b = mon[f"{kind}_balance"]
+                b = b[:, 0] if b.ndim > 1 else b
+                ref = max(float(np.max(np.abs(val))), float(np.max(np.abs(flux))), 1e-300)
+                d[f"{kind}_balance_relative"] = float(np.max(np.abs(b)) / ref)
+            d["parcels"] = [int(np.min(mon["parcels"])), int(np.max(mon["parcels"]))]
         if "angular_momentum_cm" in mon:  # rods: the momenta (reactions of supports included) and the frames
             for key in ("linear_momentum", "angular_momentum_cm"):
                 v = mon[key]
