@@ -882,10 +882,12 @@ class Simulation:
     def _open_update(self, st):
         """Inject and remove parcels at a level (docs/theory.md §13.2-13.3), booking what they carry.
 
-        The lattice holds the parcels whose centres are in the tube: when the first label passes half an inflow
-        parcel beyond s = 0 a new label is prepended a parcel's volume upstream (a new parcel at the inlet's state);
-        when the last parcel's centre passes s = L, that parcel and the last label are dropped.  Labels keep their
-        level velocities, their masses become those of the new lattice (half a parcel at each end)."""
+        A rigid tube's lattice holds the parcels whose centres are in the tube: when the first label passes half an
+        inflow parcel beyond s = 0 a new label is prepended a parcel's volume upstream (a new parcel at the inlet's
+        state); when the last parcel's centre passes s = L, that parcel and the last label are dropped; backflow by
+        the mirror rules.  A dynamic wall's tube is kept full instead (thresholds at the ends themselves, the inlet's
+        one step ahead).  Labels keep their level velocities, their masses become those of the new lattice (half a
+        parcel at each end); what enters or leaves is booked into the balances' fluxes."""
         m = self.model
         t = m.tube
         ns = t.layout["s"].stop  # the free labels; a dynamic wall's radii follow them in q, p, v and do not change
