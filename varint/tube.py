@@ -294,7 +294,8 @@ class TubePart:
             self.mass = np.concatenate([self.mass, self.wall.a * self.node_weights[1:-1]])
         if self.incompressible:
             self.V0 = self.m / self.rho0
-            self.terms = [WallIncompressibility(self.ext, self.V0) if self.has_wall else OpenIncompressibility(self.duct, self.V0)]
+            self.terms = [WallIncompressibility(self.ext, self.V0) if self.has_wall
+                          else OpenIncompressibility(self.duct, self.V0)]
         else:
             self.terms = [WallInternalEnergy(self.ext, self.eos, self.m, self.S) if self.has_wall
                           else OpenInternalEnergy(self.duct, self.eos, self.m, self.S)]
