@@ -107,8 +107,11 @@ SCHEMA = MappingProxyType({
             "in at inflow_velocity; pressure: inflow_pressure acting on the last parcel entering), docs/theory.md §13",
             choices=("velocity", "pressure")),
         Key("inflow_velocity", "float", None, "m/s", "open ends: velocity of the entering fluid (default fluid.velocity)", low=0.0, low_open=True),
-        Key("inflow_density", "float", None, "kg/m^3", "open ends: density of the entering fluid (default fluid.density)", low=0.0, low_open=True),
-        Key("inflow_pressure", "float", None, "Pa", "open ends: pressure of the entering fluid (default fluid.pressure; a gas's entropy follows from it and inflow_density)"),
+        Key("inflow_density", "float", None, "kg/m^3", "open ends: density of the entering fluid (default fluid.density); with inflow_pressure "
+            "it sets the entering parcels' mass (inflow_density x parcel volume) and entropy; at a velocity inlet they enter at the "
+            "pressure of the parcel they join (docs/theory.md §13.2)", low=0.0, low_open=True),
+        Key("inflow_pressure", "float", None, "Pa", "open ends: pressure of the entering fluid (default fluid.pressure): a pressure inlet's "
+            "pressure; with inflow_density, the entering gas's entropy"),
         Key("outflow_pressure", "float", None, "Pa", "open ends: pressure at the outlet s = L (default environment.external_pressure: a free jet)"),
     ),
     "fluid.initial[]": (
