@@ -159,3 +159,20 @@ def test_check_reports_effects_unknowns_and_invariants(tmp_path, capsys):
     assert "effects: wall, fluid, external_pressure" in out
     assert "s (15), R (17)" in out
     assert "expected invariants: energy, mass, parcel_entropy" in out
+
+
+@pytest.mark.parametrize("ends,words", [
+    ({"s0": "closed", "sL": "closed"}, "closed ends"),
+    ({"s0": "inflow", "sL": "outflow", "inflow_velocity": 3.0, "outflow_pressure": 9.0e4},
+     "open ends (velocity inlet at 3 m/s; outlet at 90000 Pa)"),
+    ({"s0": "inflow", "sL": "outflow", "inflow": "pressure", "inflow_pressure": 1.2e5},
+     "open ends (pressure inlet at 120000 Pa; outlet at"),
+])
+def test_check_says_what_the_fluid_ends_are(tmp_path, capsys, ends, words):
+    d = copy.deepcopy(gas_scene())
+    d["fluid"]["ends"] = ends
+    f = tmp_path / "scene.toml"
+    f.write_text(to_toml(d))
+    assert main(["check", str(f)]) == 0
+    lattice = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("lattice:")]
+    assert len(lattice) == 1 and words in lattice[0], lattice

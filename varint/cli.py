@@ -79,6 +79,19 @@ def cmd_run(args):
     return 0
 
 
+def _ends_text(scene):
+    """The fluid's ends in words: closed, periodic, or the open pair with the inlet's and the outlet's data."""
+    f = scene.fluid
+    if f is None or f.ends.s0 == "closed":
+        return "closed ends"
+    if f.ends.s0 == "periodic":
+        return "periodic ends"
+    e = f.ends
+    inlet = (f"velocity inlet at {e.inflow_velocity:g} m/s" if e.inflow == "velocity"
+             else f"pressure inlet at {e.inflow_pressure:g} Pa")
+    return f"open ends ({inlet}; outlet at {e.outflow_pressure:g} Pa)"
+
+
 def cmd_check(args):
     from .model import build_model
 
@@ -103,8 +116,7 @@ def cmd_check(args):
         print("  rod: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["rod"].items()))
         print(f"  initial shape: {d['initial_shape']}")
     else:
-        print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, "
-              f"{'periodic' if lat['periodic'] else 'closed'} ends")
+        print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels, {_ends_text(scene)}")
     if "wall" in d:
         print("  wall: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["wall"].items()))
     if "fluid" in d:
