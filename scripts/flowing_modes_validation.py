@@ -31,6 +31,8 @@ CASES = [  # (name, ends, beta, gamma)
     ("cantilever", ("clamped", "free"), 0.8, 0.0),
     ("hanging cantilever", ("clamped", "free"), 0.2, 10.0),
     ("hanging cantilever", ("clamped", "free"), 0.5, 10.0),
+    ("hanging, Païdoussis Table 3.4", ("clamped", "free"), 0.23e-3, 61.1),
+    ("hanging, Païdoussis Table 3.4", ("clamped", "free"), 2.03e-3, 42.4),
 ]
 
 
