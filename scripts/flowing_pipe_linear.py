@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 
-from varint.analysis import flowing_pipe_waves  # noqa: E402
+from varint.analysis import flowing_pipe_critical_speed, flowing_pipe_waves  # noqa: E402
 
 EI, KGA, RHOA, RHOI, M = 1.0, 400.0, 1.0, 1e-4, 1.0
 K = 2.0 * math.pi
@@ -101,11 +101,7 @@ def continuum(U):
 
 
 def critical_speed():
-    lo, hi = 1.0, 20.0
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if max(abs(w.imag) for w in continuum(mid)) < 1e-9 else (lo, mid)
-    return 0.5 * (lo + hi)
+    return flowing_pipe_critical_speed(K, EI, KGA, RHOA, RHOI, M)
 
 
 def fmt(ws):

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.analysis import flowing_pipe_waves
+from varint.analysis import flowing_pipe_critical_speed, flowing_pipe_waves
 
 from helpers import to_toml
 
@@ -49,12 +49,10 @@ def theory(U):
 
 
 def critical_speed():
-    """U where the two bending roots meet (bisection on the imaginary part)."""
-    lo, hi = 1.0, 20.0
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if max(abs(w.imag) for w in theory(mid)) < 1e-9 else (lo, mid)
-    return 0.5 * (lo + hi)
+    """U where the two bending roots meet."""
+    s = SECTION
+    return flowing_pipe_critical_speed(K, s["bending_stiffness"], s["shear_stiffness"], s["mass_per_length"],
+                                       s["rotary_inertia"], RHO_F * math.pi * RADIUS ** 2)
 
 
 def pipe_scene(U, nodes, parcels, steps, h=H, amplitude=AMPLITUDE):

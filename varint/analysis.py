@@ -18,7 +18,8 @@ import scipy.sparse as sp
 from .errors import VarintError
 
 __all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "sparse_modes_of", "sparse_gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
-           "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl", "flowing_pipe_waves"]
+           "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl", "flowing_pipe_waves",
+           "flowing_pipe_critical_speed"]
 
 
 def _tube(model):
@@ -384,6 +385,25 @@ def flowing_pipe_waves(k, U, EI, kGA, rhoA, rhoI, M):
     roots = np.roots(np.polysub(np.polymul(p1, p2), [kGA * kGA * k * k]))
     low = sorted(roots, key=abs)[:2]
     return tuple(sorted((complex(w) for w in low), key=lambda w: w.real))
+
+
+def flowing_pipe_critical_speed(k, EI, kGA, rhoA, rhoI, M, U_max=None):
+    """The flow speed U_c at which the two bending waves of :func:`flowing_pipe_waves` meet and one starts to grow
+    (coupled-mode flutter of the periodic pipe), by bisection on their imaginary parts between 0 and ``U_max``
+    (default: 4 times the Euler–Bernoulli U_c = k sqrt((rhoA + M) EI / (rhoA M)))."""
+    def grows(U):
+        return max(abs(w.imag) for w in flowing_pipe_waves(k, U, EI, kGA, rhoA, rhoI, M)) > 1e-9 * k * k * math.sqrt(EI / (rhoA + M))
+
+    hi = U_max if U_max is not None else 4.0 * k * math.sqrt((rhoA + M) * EI / (rhoA * M))
+    if not grows(hi):
+        raise ValueError(f"flowing_pipe_critical_speed: the waves do not grow below U_max = {hi:g}")
+    lo = 0.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if not grows(mid) else (lo, mid)
+        if hi - lo <= 1e-13 * hi:
+            break
+    return 0.5 * (lo + hi)
 
 
 def spinning_free_rod_flap(EI, rhoA, L, spin, omega_max, samples=400):
