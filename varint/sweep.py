@@ -476,6 +476,26 @@ def _client(scheduler, workers):
     return Client(cluster), cluster
 
 
+def _quiet_close(client, cluster):
+    """Close the client and a local cluster.  A worker's connection closing under load during the shutdown is
+    logged by distributed at ERROR level with a CommClosedError traceback, though every point is done and
+    recorded: the user's stderr is not the place for it, so the distributed loggers are raised to CRITICAL for the
+    shutdown only."""
+    import logging
+
+    names = [n for n in ["distributed", *logging.root.manager.loggerDict] if n.startswith("distributed")]
+    levels = {n: logging.getLogger(n).level for n in names}
+    try:
+        for n in names:
+            logging.getLogger(n).setLevel(logging.CRITICAL)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    finally:
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
+
+
 def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=None, count=20, about="initial",
           progress=None):
     """Run a sweep; returns a summary dict (``table``, ``points``, ``computed``, ``skipped``, ``ok``, ``failed``, ``crashed``).
@@ -576,9 +596,7 @@ def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=Non
             finally:
                 bar.close()
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            _quiet_close(client, cluster)
     else:
         save()
     st = [r.get("status") for r in rows.values()]
