@@ -41,8 +41,8 @@ from numba import njit
 
 from .errors import SolverError
 from .newton import newton_damped
-from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, _k_cay, _k_element, _k_step_blocks,
-                  pack_level, unpack_level)
+from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column,
+                  _k_element, unpack_level)
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -74,7 +74,7 @@ def supports(model):
 # A[i, j] = ab[j, kv + i - j], kv = kl + ku, ab of shape (n, 2 kl + ku + 1) (rows kv+1.. hold L, rows < ku fill-in)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_band_lu(ab, kl, ku, ipiv):
     """In-place LU of a band matrix with partial pivoting; returns 0, or j + 1 if the pivot of column j is zero."""
     n = ab.shape[0]
@@ -110,7 +110,7 @@ def _k_band_lu(ab, kl, ku, ipiv):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_band_solve(ab, kl, ku, ipiv, b):
     """Solve A x = b in place with the factors of :func:`_k_band_lu`."""
     n = ab.shape[0]
@@ -138,7 +138,7 @@ def _k_band_solve(ab, kl, ku, ipiv, b):
 # the step's pieces
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
     """(xi, r_1) of the step unknowns z: u = 0 off the mask, r_1 = r_n + Lambda_n b (Step.point)."""
     n1 = Lam_n.shape[0]
@@ -153,7 +153,7 @@ def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
             xi[j, i] = z[k] if k >= 0 else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev, D, M, V, e1, e2):
     """D = D1 (lev 0) or D2 (lev 1) of L_d: the element gradients summed, and the tip force's node piece
     (varint.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular."""
@@ -174,7 +174,7 @@ def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
                 xi, r_1, D, M, V, e1, e2, out):
     """The step residual (Step.residual) at z, written into out in band order (out[bpos[k]] = R_k).
@@ -211,33 +211,59 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
     return ok
 
 
-@njit(cache=True)
-def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku, blocks, ab):
-    """The step's exact Jacobian (Step.jacobian: element blocks of varint.rod._k_step_blocks) assembled into
-    band storage ab (LAPACK layout by columns, see _k_band_lu) in band order.  Returns False if not finite."""
+@njit(cache=True, error_model="numpy")
+def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku, cs, col, ab):
+    """The step's exact Jacobian (Step.jacobian) in band storage ab (LAPACK layout by columns, see _k_band_lu), band
+    order.  Column k of element e's block: the complex step of the analytic element gradient D1 (``_k_element``) in the
+    chart u = (b_a, xi_a, b_b, xi_b) (``_k_chart_column``), translational rows in the level-n body frames
+    (``_k_body_rows``): the loop of varint.rod._k_step_blocks, assembled in place.  ``cs``: complex scratch
+    (varint.rod._element_scratch layout, then ra, rb, xa, xb, qa, qb).  Returns False if not finite."""
     N = Lam_n.shape[0] - 1
-    _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, EPS_CS, blocks)
+    M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
+    ra, rb, xa, xb, qa, qb = cs[6], cs[7], cs[8], cs[9], cs[10], cs[11]
     kv = kl + ku
     ab[:, :] = 0.0
+    inv = 1.0 / EPS_CS
     ok = True
     for e in range(N):
-        for a in range(12):
-            ka = idx[e + a // 6, a % 6]
-            if ka < 0:
+        for i in range(3):
+            ra[i] = r_n[e, i]
+            rb[i] = r_n[e + 1, i]
+            for m in range(3):
+                La[i, m] = Lam_n[e, i, m]
+                Lb[i, m] = Lam_n[e + 1, i, m]
+        for k in range(12):
+            if not cmask[e + k // 6, k % 6]:
                 continue
-            pa = bpos[ka]
-            for c in range(12):
-                kc = idx[e + c // 6, c % 6]
-                if kc < 0:
+            kc = idx[e + k // 6, k % 6]
+            if kc < 0:
+                continue
+            _k_chart_column(Lam_n, xi, r_1, e, k, EPS_CS, xa, xb, qa, qb)
+            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
+            for i in range(12):
+                col[12 + i] = e1[i].imag * inv
+            _k_body_rows(Lam_n, e, col[12:], col[:12])
+            pc = bpos[kc]
+            for a in range(12):
+                ka = idx[e + a // 6, a % 6]
+                if ka < 0:
                     continue
-                v = blocks[e, a, c]
+                v = col[a]
                 if not np.isfinite(v):
                     ok = False
-                ab[bpos[kc], kv + pa - bpos[kc]] += v
+                ab[pc, kv + bpos[ka] - pc] += v
     return ok
 
 
-@njit(cache=True)
+def _complex_scratch():
+    """Complex work arrays of :func:`_k_band_jacobian` (built once per FastRodStep)."""
+    c = np.complex128
+    return (np.zeros((5, 3, 3), c), np.zeros((16, 3), c), np.zeros(12, c), np.zeros(12, c), np.zeros((3, 3), c),
+            np.zeros((3, 3), c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c),
+            np.zeros(3, c))
+
+
+@njit(cache=True, error_model="numpy")
 def _k_floor_ok(dz, z, scale):
     """Every update within ROUNDOFF_BAND of its kind's round-off floor (varint.newton._within_floor; the rod's
     kinds are the two scales, ds for b and 1 for xi; its unknowns are no displacements of a lattice: offset 0)."""
@@ -256,8 +282,9 @@ def _k_floor_ok(dz, z, scale):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _k_stats(stats, converged, iterations, n_res, n_jac, err, factor_valid, code):
+    stats[7] = -1.0
     stats[0] = converged
     stats[1] = iterations
     stats[2] = n_res
@@ -267,15 +294,20 @@ def _k_stats(stats, converged, iterations, n_res, n_jac, err, factor_valid, code
     stats[6] = code
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, kl, ku,
-            scale, tol, max_iter, rate_refresh, polish, z, dz, rb, xi, r_1, D, M, V, e1, e2, blocks, ab, ipiv, have_factor,
-            stats):
+            scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab, ipiv,
+            have_factor, stats):
     """Newton's chord iteration of varint.newton.newton on the step residual, all compiled.
 
     ``z`` holds the predictor on entry and the solution on exit; ``ab``/``ipiv`` the factorisation, reused when
-    ``have_factor``.  ``stats`` receives (converged, iterations, residuals, jacobians, error, factor valid, code):
-    code 0 converged, 1 not finite, 2 diverging, 3 no convergence, 4 singular."""
+    ``have_factor``.  ``stats`` receives (converged, iterations, residuals, jacobians, error, factor valid, code,
+    noise): code 0 converged, 1 not finite, 2 diverging, 3 no convergence, 4 singular; noise: the size of the update
+    that stopped contracting while polishing (the measured round-off floor of the update), or -1.
+
+    One rule beyond varint.newton.newton: once ``tol`` is met, the iteration stops when the next update predicted
+    from the contraction rate, rate x err, is below ``floor_est`` (> 0: a round-off floor measured on an earlier
+    step); the stepper would take that update and one or two more of round-off size to see that they stop shrinking."""
     n = z.shape[0]
     n_res = 0
     n_jac = 0
@@ -283,7 +315,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     if not have_factor:
         _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
         ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku,
-                              blocks, ab)
+                              cs, col, ab)
         n_jac += 1
         jac_iter = 0
         if not ok or _k_band_lu(ab, kl, ku, ipiv) != 0:
@@ -315,12 +347,17 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
         it += 1
         floor = 8.0 * EPS * zmax
         if err <= tol or err <= floor:
+            if floor_est > 0.0 and err_prev > 0.0 and (err / err_prev) * err <= floor_est:
+                _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # the next update would be round-off
+                return
             contracting = polished == 0 or err < 0.7 * err_prev
             if polished < polish and err > floor and contracting:
                 polished += 1
                 err_prev = err
                 continue
             _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)
+            if not contracting:
+                stats[7] = err
             return
         if polished > 0:  # a polishing update that grew past tol: round-off, keep the converged point
             for k in range(n):
@@ -346,7 +383,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
                 if jac_iter < it:
                     _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
                     ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos,
-                                          kl, ku, blocks, ab)
+                                          kl, ku, cs, col, ab)
                     n_jac += 1
                     jac_iter = it
                     err_prev = -1.0
@@ -360,7 +397,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     _k_stats(stats, 0, it, n_res, n_jac, err, 1, 3)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z, idx,
               xi, r_1, D, M, V, e1, e2, C, q1, p1, v1, turn):
     """The accepted step's new level: q_{n+1} (Step.retract: frames re-orthonormalised by one polar Newton step, a
@@ -423,43 +460,82 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         q1[12 * n1 + i] = origin[i] + shift
 
 
+@njit(cache=True, error_model="numpy")
+def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, p, v, vprev, q1, p1, v1, wz, wn, wd, rM, rV,
+                 re, cM, cV, ce, col, ab, ipiv, stats):
+    """One whole step, one call (few array arguments: a numba call costs per argument).
+
+    cf = [h, ds, rhoA, tol, rate_refresh, floor_est]; cv rows = inertia, J, K, g, tip force, tip torque, period;
+    ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate].
+    Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then _k_finish when it
+    converged.  cf[5] and ci[7], ci[9] are updated in place."""
+    n1 = Lam_n.shape[0]
+    h, ds, rhoA, tol, rate_refresh = cf[0], cf[1], cf[2], cf[3], cf[4]
+    inertia, Jd, Kd, g, force, torque, period = cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6]
+    paper, periodic, floating = ci[0] != 0, ci[1] != 0, ci[2] != 0
+    z, dz, rb = wz[0], wz[1], wz[2]
+    xi, r_1 = wn[0], wn[1]
+    D, pin = wd[0], wd[1]
+    for k in range(z.shape[0]):
+        z[k] = 2.0 * v[vsel[k]] - vprev[vsel[k]] if ci[8] != 0 else v[vsel[k]]
+    for j in range(n1):
+        for i in range(3):
+            pin[j, i] = p[3 * j + i]
+            pin[j, 3 + i] = p[3 * n1 + 3 * j + i]
+    floor_est = cf[5] if ci[9] > 0 else -1.0
+    cs = (cM[0:5], cV[0:16], ce[0], ce[1], cM[5], cM[6], cV[16], cV[17], cV[18], cV[19], cV[20], cV[21])
+    M, V, e1, e2 = rM[0:5], rV, re[0], re[1]
+    _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, ci[3],
+            ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab,
+            ipiv, ci[7] != 0, stats)
+    ci[7] = 1 if stats[5] != 0.0 else 0
+    if stats[7] > 0.0:  # a measured round-off floor: recalibrate every 64 steps
+        cf[5] = stats[7]
+        ci[9] = 64
+    elif ci[9] > 0:
+        ci[9] -= 1
+    if stats[0] == 0.0:
+        return
+    _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z,
+              idx, xi, r_1, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
+
+
 class FastRodStep:
     """The compiled rod step (module docstring): ``step(state) -> new State``, the stepper's equations.
 
     ``tol``, ``max_iter``: Newton's (default: the scene's ``time.newton_tol`` and ``max(time.max_iterations,
-    40)``, as :class:`varint.stepper.Simulation`); ``predictor``: "linear" (the last two steps' (b, xi)
-    extrapolated, default) or "constant" (the last step's, the stepper's).
+    40)``, as :class:`varint.stepper.Simulation`); ``predictor``: "constant" (the last step's (b, xi), the
+    stepper's; default) or "linear" (the last two steps' extrapolated).  ``early_stop``: stop once the next update
+    predicted from the contraction rate is below the round-off floor measured on an earlier step (``_k_step``);
+    False polishes every step exactly as the stepper does.
     """
 
-    def __init__(self, model, h=None, tol=None, max_iter=None, predictor="linear"):
+    def __init__(self, model, h=None, tol=None, max_iter=None, predictor="constant", early_stop=True):
         why = supports(model)
         if why is not None:
             raise SolverError(f"rod step: the fast path does not run this model ({why})")
+        if predictor not in ("linear", "constant"):
+            raise ValueError(f"predictor: {predictor!r} is not 'linear' or 'constant'")
         rod = model.rod
         tcfg = model.scene.time
         self.model, self.rod = model, rod
         self.h = float(h if h is not None else tcfg.step)
         self.tol = float(tol if tol is not None else tcfg.newton_tol)
         self.max_iter = int(max(max_iter if max_iter is not None else tcfg.max_iterations, 40))
-        if predictor not in ("linear", "constant"):
-            raise ValueError(f"predictor: {predictor!r} is not 'linear' or 'constant'")
-        self.predictor = predictor
-        self.floating = bool(rod.free)  # Simulation.floating_origin
+        self.predictor, self.early_stop = predictor, bool(early_stop)
         N = rod.N
         n1 = N + 1
+        self.n1 = n1
         _, rhoA, inertia, J, K, g, force = rod._consts()
         torque = np.zeros(3)
         for f in model.forces:
             torque = torque + f.torque
-        self.consts = (self.h, rod.ds, float(rhoA), inertia, J, K, np.ascontiguousarray(g, dtype=float),
-                       np.ascontiguousarray(force, dtype=float), torque, bool(rod.paper_measure), bool(rod.periodic))
-        self.period = np.ascontiguousarray(rod.period, dtype=float)
         self.idx = np.ascontiguousarray(rod.node_index(), dtype=np.int64)
         self.cmask = np.ascontiguousarray(rod.column_mask)
         nz = rod.nz
         self.nz = nz
-        # band order: node-major (z's own order) for open ends; a periodic rod's nodes interleaved so that the
-        # wrap-around element (N-1, N = image of 0) stays within a few nodes of the diagonal
+        # band order: node-major (z's own order) for open ends; a periodic rod's nodes interleaved 0, 1, N-1, 2, N-2, ...
+        # so that the wrap-around element (N-1, N = image of 0) stays within a few nodes of the diagonal
         if rod.periodic:
             order = [0]
             lo, hi = 1, N - 1
@@ -471,9 +547,8 @@ class FastRodStep:
             node_pos = np.empty(N, np.int64)
             node_pos[np.array(order)] = np.arange(N)
             per_node = int(rod.mask[0].sum())
-            k_node = np.repeat(np.arange(N), per_node)
-            k_dir = np.tile(np.arange(per_node), N)
-            self.bpos = np.ascontiguousarray(node_pos[k_node] * per_node + k_dir, dtype=np.int64)
+            self.bpos = np.ascontiguousarray(node_pos[np.repeat(np.arange(N), per_node)] * per_node
+                                             + np.tile(np.arange(per_node), N), dtype=np.int64)
         else:
             self.bpos = np.arange(nz, dtype=np.int64)
         rows, cols, _ = rod._block_pattern()
@@ -482,58 +557,75 @@ class FastRodStep:
         sc = np.ones((n1, 6))
         sc[:, :3] = rod.ds
         self.scale = np.ascontiguousarray(sc[rod.mask])  # Simulation._scales
-        # preallocated buffers (reused by every step and every iteration)
-        self.z = np.zeros(nz)
-        self.dz = np.zeros(nz)
-        self.rb = np.zeros(nz)
-        self.xi = np.zeros((n1, 3))
-        self.r_1 = np.zeros((n1, 3))
-        self.D = np.zeros((n1, 6))
-        self.M = np.zeros((5, 3, 3))
-        self.V = np.zeros((16, 3))
-        self.e1 = np.zeros(12)
-        self.e2 = np.zeros(12)
-        self.C = np.zeros((3, 3))
-        self.blocks = np.zeros((N, 12, 12))
+        # where each unknown's last-step value sits in State.v ([b (n1, 3) | xi (n1, 3)]): the predictor
+        vidx = np.empty((n1, 6), np.int64)
+        vidx[:, :3] = 3 * np.arange(n1)[:, None] + np.arange(3)
+        vidx[:, 3:] = 3 * n1 + 3 * np.arange(n1)[:, None] + np.arange(3)
+        self.vsel = np.ascontiguousarray(vidx[rod.mask])
+        # constants and preallocated buffers (reused by every step and every iteration)
+        self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, RATE_REFRESH_ROD, -1.0])
+        self.cv = np.ascontiguousarray(np.stack([inertia, J, K, g, force, torque, rod.period]), dtype=float)
+        self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
+                            0, 0], dtype=np.int64)
+        self.wz = np.zeros((3, nz))
+        self.wn = np.zeros((2, n1, 3))
+        self.wd = np.zeros((2, n1, 6))
+        self.rM = np.zeros((6, 3, 3))
+        self.rV = np.zeros((16, 3))
+        self.re = np.zeros((2, 12))
+        c = np.complex128
+        self.cM = np.zeros((7, 3, 3), c)
+        self.cV = np.zeros((22, 3), c)
+        self.ce = np.zeros((2, 12), c)
+        self.col = np.zeros(24)
         self.ab = np.zeros((nz, 2 * self.kl + self.ku + 1))
         self.ipiv = np.zeros(nz, np.int64)
-        self.pin = np.zeros((n1, 6))
-        self.turn = np.zeros(2)
-        self.stats = np.zeros(7)
-        self.have_factor = False
-        self._prev = None  # (n, v) of the step before the state's last one, for the linear predictor
+        self.stats = np.zeros(10)
+        self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
         self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0}
+        self._has_data = model.state_data() is not None
+
+    @property
+    def z(self):
+        """The last step's solution (step unknowns in Step's order)."""
+        return self.wz[0]
+
+    def _consts(self):
+        h, ds, rhoA = self.cf[:3]
+        inertia, J, K, g, force, torque, period = self.cv
+        return h, ds, rhoA, inertia, J, K, g, force, torque, bool(self.ci[0]), bool(self.ci[1])
+
+    def _level(self, q):
+        Lam, r, origin = unpack_level(q[self.model.rod_q], self.rod.N)
+        return np.ascontiguousarray(Lam), np.ascontiguousarray(r), np.ascontiguousarray(origin)
 
     # -- the pieces, for tests ----------------------------------------------------------------------------------
 
-    def _level(self, q, p):
-        rod = self.rod
-        n1 = rod.N + 1
-        Lam, r, origin = unpack_level(q[self.model.rod_q], rod.N)
-        pp = p[self.model.rod_p]
-        self.pin[:, :3] = pp[:3 * n1].reshape(n1, 3)
-        self.pin[:, 3:] = pp[3 * n1:].reshape(n1, 3)
-        return np.ascontiguousarray(Lam), np.ascontiguousarray(r), np.array(origin)
-
     def residual(self, q0, p0, z):
         """The compiled step residual at z (Step.residual's order)."""
-        Lam, r, _ = self._level(q0, p0)
+        Lam, r, _ = self._level(q0)
+        n1 = self.n1
+        pp = p0[self.model.rod_p]
+        pin = np.concatenate([pp[:3 * n1].reshape(n1, 3), pp[3 * n1:].reshape(n1, 3)], axis=1)
         out = np.zeros(self.nz)
-        _k_residual(*self.consts[:9], self.consts[9], self.consts[10], Lam, r, self.pin, np.ascontiguousarray(z, dtype=float),
-                    self.idx, self.bpos, self.xi, self.r_1, self.D, self.M, self.V, self.e1, self.e2, out)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        _k_residual(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, pin,
+                    np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wd[0],
+                    self.rM[:5], self.rV, self.re[0], self.re[1], out)
         return out[self.bpos]
 
     def jacobian(self, q0, z):
         """The compiled band Jacobian at z as a dense (nz, nz) array in z's order (Step.jacobian's)."""
-        Lam, r, _ = self._level(q0, np.zeros(len(q0)))
+        Lam, r, _ = self._level(q0)
         z = np.ascontiguousarray(z, dtype=float)
-        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self.consts
-        _k_chart(Lam, r, z, self.idx, periodic, self.xi, self.r_1)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        _k_chart(Lam, r, z, self.idx, periodic, self.wn[0], self.wn[1])
         ab = np.zeros_like(self.ab)
-        _k_band_jacobian(h, ds, rhoA, inertia, J, K, g, paper, Lam, r, self.xi, self.r_1, self.cmask, self.idx, self.bpos,
-                         self.kl, self.ku, self.blocks, ab)
+        cs = (self.cM[0:5], self.cV[0:16], self.ce[0], self.ce[1], self.cM[5], self.cM[6]) + tuple(self.cV[16:22])
+        _k_band_jacobian(h, ds, rhoA, inertia, J, K, g, paper, Lam, r, self.wn[0], self.wn[1], self.cmask, self.idx,
+                         self.bpos, self.kl, self.ku, cs, self.col, ab)
         kv = self.kl + self.ku
         A = np.zeros((self.nz, self.nz))
         for jb in range(self.nz):
@@ -544,18 +636,18 @@ class FastRodStep:
     # -- the step -------------------------------------------------------------------------------------------------
 
     def predict(self, state):
-        """z0: the last step's (b, xi) on the mask, or (linear) 2 v_n - v_{n-1} when the step before is known."""
-        rod = self.rod
-        n1 = rod.N + 1
+        """z0 (Python twin of the kernel's): the last step's (b, xi) on the mask, or (linear) 2 v_n - v_{n-1}."""
         v = state.v[self.model.rod_p]
         if self.predictor == "linear" and self._prev is not None and self._prev[0] == state.n - 1:
-            v = 2.0 * v - self._prev[1]
-        g = v.reshape(2, n1, 3)
-        return np.concatenate([g[0], g[1]], axis=1)[rod.mask]
+            return 2.0 * v[self.vsel] - self._prev[1][self.vsel]
+        return v[self.vsel]
 
     def invalidate(self):
-        """Forget the reused factorisation and the predictor's history (Simulation.invalidate_jacobian)."""
-        self.have_factor = False
+        """Forget the reused factorisation, the predictor's history and the measured floor
+        (Simulation.invalidate_jacobian: a restart then repeats the same arithmetic)."""
+        self.ci[7] = 0
+        self.ci[9] = 0
+        self.cf[5] = -1.0
         self._prev = None
 
     def _fallback(self, state, z0):
@@ -571,32 +663,34 @@ class FastRodStep:
         res = newton_damped(F, Jf, z0, self.scale, self.tol, 4 * self.max_iter)
         if not res.converged:
             res = newton_damped(F, Jf, np.zeros(self.nz), self.scale, self.tol, 4 * self.max_iter)
-        self.have_factor = False
+        self.ci[7] = 0
         return res
 
     def step(self, state):
         """The next level: a :class:`varint.stepper.State` as Simulation.step makes it (rod-only model)."""
         from .stepper import State
 
-        m, rod = self.model, self.rod
-        n1 = rod.N + 1
+        m, n1 = self.model, self.n1
         n_new = state.n + 1
-        Lam, r, origin = self._level(state.q, state.p)
-        z = self.z
-        z[:] = self.predict(state)
-        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self.consts
+        q = state.q[m.rod_q]
+        p = np.ascontiguousarray(state.p[m.rod_p])
+        v = np.ascontiguousarray(state.v[m.rod_p])
+        Lam, r, origin = q[3 * n1:12 * n1].reshape(n1, 3, 3), q[:3 * n1].reshape(n1, 3), q[12 * n1:]
+        linear = self.predictor == "linear" and self._prev is not None and self._prev[0] == state.n - 1
+        self.ci[8] = 1 if linear else 0
+        if not self.early_stop:
+            self.ci[9] = 0
+        vprev = self._prev[1] if linear else v
+        q1 = np.empty(12 * n1 + 3)
+        p1 = np.empty(6 * n1)
+        v1 = np.empty(6 * n1)
         st = self.stats
-        z0 = np.array(z)
-        try:
-            _k_step(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, self.pin, self.idx, self.cmask,
-                    self.bpos, self.kl, self.ku, self.scale, self.tol, self.max_iter, RATE_REFRESH_ROD, POLISH_ROD, z,
-                    self.dz, self.rb, self.xi, self.r_1, self.D, self.M, self.V, self.e1, self.e2, self.blocks, self.ab,
-                    self.ipiv, self.have_factor, st)
-        except ZeroDivisionError:  # an iterate turned a frame by pi: the Cayley chart is singular there
-            st[:] = (0, 0, 0, 0, np.inf, 0, 1)
-        self.have_factor = bool(st[5])
+        _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, Lam, r, origin, p,
+                     v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
+                     self.col, self.ab, self.ipiv, st)
         iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
         if not st[0]:
+            z0 = 2.0 * v[self.vsel] - vprev[self.vsel] if linear else v[self.vsel]
             res = self._fallback(state, z0)
             iters, nres, njac = iters + res.iterations, nres + res.n_residual, njac + res.n_jacobian
             if not res.converged:
@@ -604,18 +698,19 @@ class FastRodStep:
                 raise SolverError(f"Newton failed at {where}: {res.message}; scaled update {res.error:.3g} after "
                                   f"{iters} iterations; try a smaller time.step", step=n_new, time=n_new * self.h,
                                   residual=res.error, rate=res.rate)
-            z[:] = res.z
-        q1 = np.empty(12 * n1 + 3)
-        p1 = np.empty(6 * n1)
-        v1 = np.empty(6 * n1)
-        _k_finish(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, self.floating, self.period, Lam, r, origin,
-                  z, self.idx, self.xi, self.r_1, self.D, self.M, self.V, self.e1, self.e2, self.C, q1, p1, v1, self.turn)
-        if self.turn[0] > XI_MAX:
-            j = int(self.turn[1])
-            deg = math.degrees(2.0 * math.atan(0.5 * self.turn[0]))
-            self.have_factor = False
+            self.wz[0] = res.z
+            h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+            _k_finish(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, bool(self.ci[2]), self.cv[6], Lam,
+                      r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wd[0], self.rM[:5], self.rV,
+                      self.re[0], self.re[1], self.rM[5], q1, p1, v1, st[8:10])
+        if st[8] > XI_MAX:
+            j = int(st[9])
+            deg = math.degrees(2.0 * math.atan(0.5 * st[8]))
+            self.ci[7] = 0
             raise SolverError(f"step {n_new} (t = {n_new * self.h:.6g} s): node {j} turns by {deg:.0f} degrees in one "
                               "step (more than 90); reduce time.step", step=n_new, time=n_new * self.h)
-        self._prev = (state.n, state.v[m.rod_p].copy())
+        if self.predictor == "linear":
+            self._prev = (state.n, v.copy())
         self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac}
-        return State(n_new, n_new * self.h, q1, p1, np.zeros(0), v1, state.q.copy(), m.state_data())
+        return State(n_new, n_new * self.h, q1, p1, np.zeros(0), v1, state.q.copy(),
+                     m.state_data() if self._has_data else None)
