@@ -68,6 +68,9 @@ class Model:
         self.rod = RodPart(scene) if scene.rod is not None else None
         #: the coupled tube (docs/theory.md §10): the fluid's terms read both parts
         self.coupled = self.tube is not None and self.rod is not None  # (a [wall] on a [rod] comes with a [fluid]: varint.scene)
+        if self.coupled and self.tube.open:
+            # open ends on the rod (docs/theory.md §13.1): the parcels start with their volumes on the rod's centreline
+            self.tube.coupled_rebase(self.open_volumes(np.r_[self.tube.piston, self.tube.q_init], self.rod.Lam0, self.rod.r0))
         self._layout()
         #: non-conservative forces (discrete Lagrange-d'Alembert, varint.forces.Force), every part's
         self.forces = [f for part in (self.tube, self.rod) if part is not None for f in getattr(part, "forces", [])]
@@ -187,6 +190,8 @@ class Model:
         cfg = t.config(np.concatenate([t.q_init, t.lam_init]))
         u = np.zeros(t.M + 1)
         u[self.free_labels] = t.v_init[t.layout["s"]]  # the closed ends' labels do not move along the tube
+        if t.open and t.n_fixed:
+            u[0] = t.U_in  # the inlet's piston
         if t.periodic:
             u[-1] = u[0]
         nodes, Nw, dNw, X, dX, _ = self.centreline(cfg.s, rod.r0)
@@ -203,7 +208,20 @@ class Model:
     def free_labels(self):
         """Which of the M+1 labels are unknowns: the interior ones (closed ends) or 0..M-1 (periodic: label M
         is label 0 shifted by the period)."""
-        return slice(0, -1) if self.tube.periodic else slice(1, -1)
+        t = self.tube
+        if t.open:  # open ends: every label but a velocity inlet's piston
+            return slice(t.n_fixed, None)
+        return slice(0, -1) if t.periodic else slice(1, -1)
+
+    def open_volumes(self, s, Lam, r):
+        """The stretched volumes of the open coupled tube's parcels (labels ``s``) on the extended lattice (§13.1)."""
+        from .coupled_geometry import stretched_volumes
+        from .coupled_terms import element_strains, stretch_map
+
+        ext = self.tube.ext
+        G, _, _ = element_strains(ext.frames(Lam), ext.positions(r), self.tube.ds)
+        gamma = stretch_map(ext.n_ext, False) @ np.linalg.norm(G, axis=1)
+        return stretched_volumes(np.asarray(s) + ext.shift, ext.pad(self.tube.R_reference), gamma, self.tube.ds, False)
 
     def centreline(self, s, r):
         """``centreline_and_weights`` of the labels ``s`` on the rod positions ``r`` (N+1, 3): a periodic tube's
@@ -213,6 +231,14 @@ class Model:
         rod = self.rod
         if rod.periodic:
             return centreline_and_weights(s, r[:-1], self.tube.ds, True, rod.period)
+        if self.tube.open:
+            # the extended centreline (§13.1); the weights of the ghost nodes are passed on to the real nodes they tie
+            ext = self.tube.ext
+            nodes, Nw, dNw, X, dX, d2X = centreline_and_weights(np.asarray(s) + ext.shift, ext.positions(r), self.tube.ds)
+            k = len(nodes)
+            wn, ww = ext.node_weights()
+            fold = lambda A: (A[:, :, None] * ww[nodes]).reshape(k, -1)  # noqa: E731
+            return wn[nodes].reshape(k, -1), fold(Nw), fold(dNw), X, dX, d2X
         return centreline_and_weights(s, r, self.tube.ds)
 
     def upgrade_level(self, q):

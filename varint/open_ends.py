@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.sparse as sp
 
 from .forces import Declaration, Force
 
@@ -335,3 +336,96 @@ class WallIncompressibility(_WallParcelTerm):
         jc = self.ext.remap(jc, len(cfg.s), index["R"])
         jr = np.asarray(jr, dtype=np.int64) + index["mu"]
         return np.concatenate([r, jr, jc]), np.concatenate([c, jc, jr]), np.concatenate([v, -jv, -jv])
+
+
+class CoupledExtension:
+    """The coupled tube's centreline extended beyond each open end (docs/theory.md §13.1, coupled).
+
+    ``E`` ghost nodes beyond each end continue the rod straight along the end tangent of the closed tube,
+    T_0 = (-3 r_0 + 4 r_1 - r_2) / (2 ds) (the one-sided second-order tangent of §10.2), ghost k at
+    r_{-k} = r_0 - k ds T_0 = (1 + 3k/2) r_0 - 2k r_1 + (k/2) r_2, likewise beyond s = L; a ghost's frame is its
+    end node's (Lambda_{-k} = Lambda_0), its radius the end node's.  The weights of each ghost sum to 1, so rigid
+    motions of the rod move the extension rigidly.  The fluid kernels of varint.coupled_terms then read the labels on
+    the extended lattice (labels shifted by E ds); their gradients and Newton blocks are folded back onto the real
+    nodes by the chain rule of this linear tie (``fold_gradient``, ``fold_matrix``)."""
+
+    def __init__(self, N, ds, E):
+        self.N, self.ds, self.E = int(N), float(ds), int(E)
+        self.shift = self.E * self.ds
+        self.n_ext = self.N + 1 + 2 * self.E
+        N, E = self.N, self.E
+        rows, cols, vals = [E + np.arange(N + 1)], [np.arange(N + 1)], [np.ones(N + 1)]
+        for k in range(1, E + 1):
+            w = np.array([1.0 + 1.5 * k, -2.0 * k, 0.5 * k])
+            rows += [np.full(3, E - k), np.full(3, E + N + k)]
+            cols += [np.array([0, 1, 2]), np.array([N, N - 1, N - 2])]
+            vals += [w, w]
+        self.W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(self.n_ext, N + 1))
+        self.WT = self.W.T.tocsr()
+        #: the real node whose frame (and radius) each extended node has
+        self.node_map = np.concatenate([np.zeros(E, np.int64), np.arange(N + 1), np.full(E, N)])
+        self._coo = self.W.tocoo()
+
+    def positions(self, r):
+        return self.W @ np.asarray(r, dtype=np.float64)
+
+    def node_weights(self):
+        """(n_ext, 3) real nodes and weights of each extended node (zero-padded): r_a = sum_c ww[a, c] r[wn[a, c]]."""
+        wn = np.zeros((self.n_ext, 3), np.int64)
+        ww = np.zeros((self.n_ext, 3))
+        W = self.W
+        for a in range(self.n_ext):
+            lo, hi = W.indptr[a], W.indptr[a + 1]
+            wn[a, : hi - lo] = W.indices[lo:hi]
+            ww[a, : hi - lo] = W.data[lo:hi]
+        return wn, ww
+
+    def frames(self, Lam):
+        return np.ascontiguousarray(np.asarray(Lam)[self.node_map])
+
+    def pad(self, R):
+        return np.asarray(R, dtype=np.float64)[self.node_map]
+
+    def fold_gradient(self, g_ext):
+        """(n_ext, 6) [dr spatial | sigma body] -> (N+1, 6)."""
+        g = np.zeros((self.N + 1, 6))
+        g[:, :3] = self.WT @ g_ext[:, :3]
+        np.add.at(g[:, 3:], self.node_map, g_ext[:, 3:])
+        return g
+
+    def fold_radii(self, g_ext):
+        g = np.zeros(self.N + 1)
+        np.add.at(g, self.node_map, g_ext)
+        return g
+
+    def fold_matrix(self, Lam_n, n_lab, n_mu):
+        """G with u_ext = G u for the Newton chart (docs/theory.md §10.9): per extended node a, b_a = Lambda_f^nT
+        sum_i W_ai Lambda_i^n b_i (f its frame node) and xi_a = xi_f; the label, radius and multiplier columns
+        (``n_lab`` labels, a radius per node, the extended radii folded to their end nodes, ``n_mu`` multipliers)
+        follow.  The Newton block of the real nodes is G^T J_ext G (its rows, Lambda_i^nT dL/dr_i, fold with the
+        same blocks transposed)."""
+        c = self._coo
+        f = self.node_map[c.row]
+        blocks = np.einsum("kji,kjl->kil", Lam_n[f], Lam_n[c.col]) * c.data[:, None, None]  # W_ai Lam_f^T Lam_i
+        ii, jj = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+        rows = [(6 * c.row[:, None, None] + ii[None]).ravel()]
+        cols = [(6 * c.col[:, None, None] + jj[None]).ravel()]
+        vals = [blocks.ravel()]
+        a = np.arange(self.n_ext)
+        rows.append((6 * a[:, None] + 3 + np.arange(3)).ravel())
+        cols.append((6 * self.node_map[:, None] + 3 + np.arange(3)).ravel())
+        vals.append(np.ones(3 * self.n_ext))
+        nR_ext, nR = self.n_ext, self.N + 1
+        o_e, o_r = 6 * self.n_ext, 6 * (self.N + 1)
+        rows.append(o_e + np.arange(n_lab))
+        cols.append(o_r + np.arange(n_lab))
+        vals.append(np.ones(n_lab))
+        rows.append(o_e + n_lab + np.arange(nR_ext))
+        cols.append(o_r + n_lab + self.node_map)
+        vals.append(np.ones(nR_ext))
+        rows.append(o_e + n_lab + nR_ext + np.arange(n_mu))
+        cols.append(o_r + n_lab + nR + np.arange(n_mu))
+        vals.append(np.ones(n_mu))
+        shape = (o_e + n_lab + nR_ext + n_mu, o_r + n_lab + nR + n_mu)
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)

@@ -587,9 +587,10 @@ class _Validator:
         if sc.time.scheme != "midpoint":
             self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme only; use 'midpoint'")
         if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None
-                and sc.fluid.model == "incompressible"):
+                and sc.fluid.model == "incompressible" and sc.fluid.ends.s0 != "inflow"):
+            # (open ends let the liquid through: the inextensible pipe conveying liquid of Paidoussis, theory §13.1)
             self.bad("rod.constraint", "an incompressible liquid in a rigid, closed, inextensible tube cannot move relative "
-                     "to it (its volume already fixes the length): add a [wall] or use constraint = 'none'")
+                     "to it (its volume already fixes the length): add a [wall], open its ends or use constraint = 'none'")
         if rod.constraint == "inextensible_unshearable" and rod.measure == "paper":
             self.bad("rod.measure", "'paper' weights densities by |Gamma|, which the inextensible rod holds at 1: use 'reference'")
         stiff = ("mass_per_length", "rotary_inertia", "bending_stiffness", "torsional_stiffness", "axial_stiffness", "shear_stiffness")

@@ -275,8 +275,12 @@ class CoupledFluid:
         self.model, self.t, self.rod = model, t, rod
         # a periodic tube's kernels read nodes 0..N-1 and wrap with the period (node N is node 0's image)
         self.n_nodes = n_nodes = rod.N if rod.periodic else rod.N + 1
+        #: open ends (docs/theory.md §13.1): the kernels read the centreline extended beyond the ends
+        #: (varint.open_ends.CoupledExtension), the liquid's multipliers are gauge pressures (p_ext = 0 here)
+        self.ext = t.ext if t.open else None
         self.fp = FluidPotential(ds=t.ds, m=t.m, mbar=t.label_mass_all, eos=t.eos, S=t.S if t.eos is not None else None,
-                                 V0=t.V0 if t.incompressible else None, p_ext=t.p_ext, g=np.array(rod.g, dtype=float),
+                                 V0=t.V0 if t.incompressible else None, p_ext=0.0 if t.open else t.p_ext,
+                                 g=np.array(rod.g, dtype=float),
                                  periodic=rod.periodic, period=rod.period if rod.periodic else None)
         off, n = newton_offsets(n_nodes, t.M + 1, t.nR, t.M if t.incompressible else 0)
         self.n_order = n
@@ -316,6 +320,11 @@ class CoupledFluid:
         t = self.t
         c0 = t.config(np.concatenate([pt.q0, pt.lam]))
         c1 = t.config(np.concatenate([pt.q1, pt.lam]))
+        if self.ext is not None and t.n_fixed:
+            # the inlet's piston: the stepper holds its step-midpoint position in c0 while it solves; its two levels are
+            # half a step's travel either side (its kinetic energy moves with the rod, docs/theory.md §13.1)
+            c0.s[0] -= 0.5 * pt.h * t.U_in
+            c1.s[0] += 0.5 * pt.h * t.U_in
         return c0.s, c0.R, c1.s, c1.R, c0.mu, pt.Lam_n @ cay(pt.xi)
 
     def _valid(self, s):
@@ -324,7 +333,15 @@ class CoupledFluid:
         from .geometry import label_problem
 
         t = self.t
+        if self.ext is not None:
+            return label_problem(s + self.ext.shift, self.ext.n_ext, t.ds, False) is None
         return label_problem(s, t.nR, t.ds, t.periodic) is None
+
+    def _extended(self, pt, s0, R0, s1, R1, Lam1):
+        """The step's data on the extended lattice of open ends: labels shifted, ghost nodes and frames."""
+        e = self.ext
+        return (s0 + e.shift, e.positions(pt.r_n), e.frames(pt.Lam_n), e.pad(R0), s1 + e.shift, e.positions(pt.r_1),
+                e.frames(Lam1), e.pad(R1))
 
     def _parts(self, pt, newton=False):
         from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
@@ -333,6 +350,11 @@ class CoupledFluid:
         if not (self._valid(s0) and self._valid(s1)):
             return None, None
         k, fp = self.n_nodes, self.fp
+        if self.ext is not None:
+            s0e, r0e, L0e, R0e, s1e, r1e, L1e, R1e = self._extended(pt, s0, R0, s1, R1, Lam1)
+            pot = fluid_potential_step(fp, pt.h, s0e, r0e, L0e, R0e, s1e, r1e, L1e, R1e, mu=mu, newton=newton)
+            kin = fluid_kinetic_chart(s0e, r0e, L0e, s1e, r1e, fp.mbar, pt.h, self.t.ds, False, None, newton=newton)
+            return pot, kin
         pot = fluid_potential_step(fp, pt.h, s0, pt.r_n[:k], pt.Lam_n[:k], R0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu,
                                    newton=newton)
         kin = fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic,
@@ -347,10 +369,13 @@ class CoupledFluid:
         """The fluid kinetic part of the step's L_d (h times the step's fluid kinetic energy)."""
         from .coupled_terms import fluid_kinetic_step
 
-        s0, _, s1, _, _, _ = self.levels(pt)
+        s0, R0, s1, R1, _, Lam1 = self.levels(pt)
         if not (self._valid(s0) and self._valid(s1)):
             return np.nan
         k, fp = self.n_nodes, self.fp
+        if self.ext is not None:
+            s0e, r0e, _, _, s1e, r1e, _, _ = self._extended(pt, s0, R0, s1, R1, Lam1)
+            return fluid_kinetic_step(s0e, r0e, s1e, r1e, fp.mbar, pt.h, self.t.ds, False, None, hessian=False)[0]
         return fluid_kinetic_step(s0, pt.r_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic, fp.period,
                                   hessian=False)[0]
 
@@ -363,11 +388,15 @@ class CoupledFluid:
             d.tube_lam += np.nan
             return
         Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
-        d.rod[:self.n_nodes] += Dp.rod + Dk.rod
         gc = np.zeros(t.nconfig)
         i = t.index
         gc[:i["R"]] = Dp.s + Dk.s
-        gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
+        if self.ext is not None:
+            d.rod[:self.n_nodes] += self.ext.fold_gradient(Dp.rod + Dk.rod)
+            gc[i["R"]:i["R"] + t.nR] = self.R_weight * self.ext.fold_radii(Dp.R)
+        else:
+            d.rod[:self.n_nodes] += Dp.rod + Dk.rod
+            gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
         if level == 0 and t.incompressible:
             gc[i["mu"]:] = pot.Dmu
         gz = self.BT @ gc
@@ -382,6 +411,12 @@ class CoupledFluid:
         r = np.concatenate([pot.newton[0], kin.newton[0]])
         c = np.concatenate([pot.newton[1], kin.newton[1]])
         v = np.concatenate([pot.newton[2], kin.newton[2]])
+        if self.ext is not None:  # the extended lattice's block folded onto the real nodes: G^T J_ext G
+            t = self.t
+            G = self.ext.fold_matrix(pt.Lam_n, t.M + 1, t.M)
+            Je = sp.csr_matrix((v, (r, c)), shape=(G.shape[0], G.shape[0]))
+            Jr = (G.T @ Je @ G).tocoo()
+            r, c, v = Jr.row, Jr.col, Jr.data
         zr, zc = self.z_of[r], self.z_of[c]
         keep = (zr >= 0) & (zc >= 0)
         nz = self.model.nz

@@ -240,14 +240,18 @@ class StepStats:
 def _refuse_open(model, scheme):
     """What open ends cannot run with yet, in one line each (docs/theory.md §13.7)."""
     t, sc = model.tube, model.scene
-    if model.rod is not None:
-        raise SolverError("fluid.ends: time integration of open ends on a [rod] (the coupled tube) is not available in "
-                          "this version; the straight tube (no [rod]) runs, and `varint modes` linearises the flowing tube")
+    if model.rod is not None and not t.open:
+        raise SolverError("fluid.ends: open ends on a [rod] (the coupled tube) run with an incompressible liquid in a rigid "
+                          "tube (no [wall]) and a velocity inlet in this version")
+    if model.rod is not None and t.p_out != t.p_ext:
+        raise SolverError("fluid.ends.outflow_pressure: open ends on a [rod] run with a free jet (the outlet at "
+                          "environment.external_pressure) in this version")
     if t.has_wall and not t.wall_dynamic:
         raise SolverError("fluid.ends: open ends with a quasistatic [wall] are not available in this version; a rigid "
                           "tube or a dynamic wall runs")
-    if t.gx != 0.0:
-        raise SolverError("environment.gravity: gravity along a tube with open ends is not available in this version")
+    if t.gx != 0.0 and model.rod is None:
+        raise SolverError("environment.gravity: gravity along a straight tube with open ends is not available in this "
+                          "version (on a [rod] it is)")
     if getattr(sc, "shock_capturing", None) is not None:
         raise SolverError("shock_capturing: not available with open ends in this version")
     if (scheme or sc.time.scheme) != "midpoint":
@@ -476,9 +480,12 @@ class Simulation:
         v = self._step_velocity(st.q, z, pt)
         lam = np.concatenate([z[m.tube_z][m.tube.nq:] if m.tube is not None else np.empty(0), z[m.rod_lam_z]])
         if self.open:
-            self._open_fluxes(st.q, z)
+            if m.coupled:
+                self._oc_fluxes(st.q, st.p, z)
+            else:
+                self._open_fluxes(st.q, z)
             new = State(n1, n1 * self.h, q1, p1, lam, v, st.q.copy(), None)
-            self._open_update(new)
+            (self._oc_update if m.coupled else self._open_update)(new)
             new.data = m.state_data()
             self._state = new
         else:
@@ -504,7 +511,7 @@ class Simulation:
     def monitors(self):
         """Invariants and energies at the current level (each part's, summed where they add up)."""
         if self.open:
-            return self._open_monitors()
+            return self._oc_monitors() if self.model.coupled else self._open_monitors()
         if self.model.coupled:
             return self._coupled_monitors()
         # one part: the tube's blocks on the fixed centreline, or the rod alone
@@ -848,6 +855,9 @@ class Simulation:
     def _open_start(self):
         """t = 0: the balances' reference values, then the ends' rule applied to the initial lattice."""
         t = self.model.tube
+        if self.model.coupled:
+            self._oc_start()
+            return
         E, _, _, P, mass, _ = self._open_energy(self._state)
         t.balance[:] = [E, P, mass, 0.0, 0.0, 0.0]
         self._open_update(self._state)
@@ -1057,10 +1067,264 @@ class Simulation:
             out["wall/velocity"] = np.r_[0.0, st.v[m.tube_p][ns:], 0.0]  # the end nodes are held
         return out
 
+    # -- open ends on the coupled tube (docs/theory.md §13.1-13.4, the tube on a [rod]) ---------------------------
+    # TubePart.balance of the coupled open tube (14 entries): E0, P0 (3), mass0, the accumulated energy flux, momentum
+    # flux (3), mass flux, the supports' impulse (3, part of the momentum flux) and the piston's last discrete momentum
+    # D2 L_d (for the impulse of the inlet at the next level)
+
+    def _oc_level(self, st):
+        """(configuration of the tube, frames, positions, origin) of the level ``st``."""
+        m = self.model
+        cfg = m.tube.config(np.concatenate([st.q[m.tube_q], st.lam[m.tube_lam]]))
+        Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
+        return cfg, Lam, r, origin
+
+    def _oc_metric(self, s, r):
+        """(Jx, rod diagonal, X, X') of labels ``s`` (every label, the piston first) on the extended centreline:
+        Xdot = Jx vel with vel = [per node (rdot, omega) | sdot per label] (docs/theory.md §10.5)."""
+        m = self.model
+        rod = m.rod
+        n1, M = rod.N + 1, len(s) - 1
+        nodes, Nw, _, X, dX, _ = m.centreline(s, r)
+        k = np.repeat(np.arange(M + 1), nodes.shape[1])
+        rr = (3 * k[:, None] + np.arange(3)).ravel()
+        rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
+        rv = np.repeat(Nw.ravel(), 3)
+        lr = (3 * np.arange(M + 1)[:, None] + np.arange(3)).ravel()
+        lc = np.repeat(6 * n1 + np.arange(M + 1), 3)
+        Jx = sp.csr_matrix((np.concatenate([rv, dX.ravel()]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
+                           shape=(3 * (M + 1), 6 * n1 + M + 1))
+        rod_diag = np.concatenate([np.repeat(rod.node_mass[:, None], 3, axis=1), rod.node_inertia], axis=1).ravel()
+        return Jx, rod_diag, X, dX
+
+    def _oc_velocities(self, st, cfg, Lam, r):
+        """Level velocities from the stored momenta in the kinetic metric (held components at rest, the piston at
+        U_in; the inextensible rod's in its tangent space, as the closed coupled tube's monitor):
+        (vel, Jx, rod diagonal, X, X')."""
+        import scipy.sparse.linalg as spla
+
+        m = self.model
+        t, rod = m.tube, m.rod
+        n1, M, nf = rod.N + 1, t.M, t.n_fixed
+        Jx, rod_diag, X, dX = self._oc_metric(cfg.s, r)
+        Mt = (Jx.T @ sp.diags(np.repeat(t.label_mass_all, 3)) @ Jx).tocsr() \
+            + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
+        known = np.zeros(6 * n1 + M + 1)
+        if nf:
+            known[6 * n1] = t.U_in
+        active = np.concatenate([np.nonzero(rod.mask.ravel())[0], 6 * n1 + np.arange(nf, M + 1)])
+        pr = st.p[m.rod_p].reshape(2, n1, 3).transpose(1, 0, 2).reshape(-1)
+        ps = np.zeros(M + 1)
+        ps[nf:] = st.p[m.tube_p][t.layout["s"]]
+        rhs = (np.concatenate([pr, ps]) - Mt @ known)[active]
+        Maa = Mt[active][:, active].tocsc()
+        if rod.constrained:
+            from .rod_constraint import constraint_jacobian
+
+            G = constraint_jacobian(Lam, r, rod.ds, rod.ncomp, rod.mask)
+            G = sp.hstack([G, sp.csr_matrix((G.shape[0], len(active) - G.shape[1]))]).tocsr()
+            K = sp.bmat([[Maa, G.T], [G, None]]).tocsc()
+            va = spla.spsolve(K, np.concatenate([rhs, np.zeros(G.shape[0])]))[: len(active)]
+        else:
+            va = spla.spsolve(Maa, rhs)
+        vel = known
+        vel[active] = va
+        return vel, Jx, rod_diag, X, dX
+
+    def _oc_energy(self, st):
+        """Energy terms, stored linear momentum and mass of the open coupled tube at the level ``st``."""
+        m = self.model
+        t, rod = m.tube, m.rod
+        n1 = rod.N + 1
+        cfg, Lam, r, origin = self._oc_level(st)
+        vel, Jx, rod_diag, X, dX = self._oc_velocities(st, cfg, Lam, r)
+        mbar = t.label_mass_all
+        Xdot = (Jx @ vel).reshape(-1, 3)
+        Kf = 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))
+        Kr = 0.5 * float(np.sum(rod_diag * vel[: 6 * n1] ** 2))
+        z3 = np.zeros((n1, 3))
+        pe = rod.level_energy(Lam, r, z3, z3, origin)
+        Ugf = -float(np.sum(mbar * ((X + origin) @ rod.g)))
+        terms = {"fluid_kinetic": Kf, "rod_kinetic": Kr, "bending_torsion": pe["bending_torsion"],
+                 "stretch_shear": pe["stretch_shear"], "gravity": pe["gravity"] + Ugf, "load": pe["load"]}
+        P = st.p[m.rod_p][: 3 * n1].reshape(n1, 3).sum(0)
+        mass = float(np.sum(rod.node_mass) + np.sum(t.m))
+        return terms, P, mass, (cfg, Lam, r, origin, vel, Xdot, dX)
+
+    def _oc_start(self):
+        """t = 0: the balances' reference values, the piston's momentum, then the ends' rule on the initial lattice."""
+        t, st = self.model.tube, self._state
+        terms, P, mass, (_, _, _, _, _, Xdot, dX) = self._oc_energy(st)
+        b = np.zeros(14)
+        b[0], b[1:4], b[4] = sum(terms.values()), P, mass
+        b[13] = t.label_mass_all[0] * float(Xdot[0] @ dX[0])
+        t.balance = b
+        self._oc_update(st)
+        st.data = self.model.state_data()
+
+    def _oc_fluxes(self, q0, p0, z):
+        """Book one step's boundary terms of the open coupled tube (docs/theory.md §13.4) and move the piston.
+
+        Energy: the inlet's work U_in I_n, I_n = pi^-_n - pi^+_n the piston's impulse at level n (pi^- = -D1 L_d of this
+        step, pi^+ = D2 L_d of the last, on the piston's label).  Momentum: gravity (and a dead tip force) on rod and
+        liquid, h (M_tot g + F), and the supports' impulse -(p_n + D1 L_d) on the held components (their rows are not
+        solved): with these sum_j p_j changes exactly as the step's equations say, the kernels being translation
+        invariant."""
+        m, h = self.model, self.h
+        t, rod = m.tube, m.rod
+        b = t.balance
+        pt = self.scheme.point(q0, z)
+        fluid = next(x for x in self.scheme.terms if x.name == "fluid")
+        pot, kin = fluid._parts(pt)
+        if t.n_fixed:
+            pi_minus = -float(pot.D1.s[0] + kin.D1.s[0])
+            b[5] += t.U_in * (pi_minus - b[13])
+            b[13] = float(pot.D2.s[0] + kin.D2.s[0])
+        d = self.scheme._derivatives(pt, 0)
+        for force in m.forces:
+            force.add(pt, d, 0)
+        n1 = rod.N + 1
+        res = p0[m.rod_p][: 3 * n1].reshape(n1, 3) + d.rod[:, :3]
+        R = -np.sum(res * ~rod.mask[:, :3], axis=0)
+        M_tot = float(np.sum(rod.node_mass) + np.sum(t.label_mass_all))
+        b[10:13] += R
+        b[6:9] += h * (M_tot * rod.g + rod.force) + R
+        if t.n_fixed:
+            t.piston += h * t.U_in
+
+    def _oc_update(self, st):
+        """Inject and remove parcels of the open coupled tube at a level (docs/theory.md §13.2-13.3, coupled).
+
+        The tube holds the parcels whose centres are in it: when the piston passes half an inflow parcel beyond s = 0 it
+        is released and a new piston is placed an inflow parcel upstream on the extended centreline (the new parcel's
+        mass: the liquid's density times its stretched volume there); when the last parcel's centre passes s = L that
+        parcel and the last label are dropped.  Every label and node keeps its level velocity (from the momenta in the
+        kinetic metric); the momenta change by the fluid's share (sum_k mbar_k N_j(s_k) Xdot_k on the nodes,
+        mbar_k Xdot_k . X'_k on the labels) of the new lattice minus the old one's, the rest of each momentum (the
+        pressures' and supports' impulses) is kept.  What the change adds is booked as the fluxes."""
+        m = self.model
+        t, rod = m.tube, m.rod
+        nf, ell, n1 = t.n_fixed, t.ell_in, rod.N + 1
+        n6 = 6 * n1
+        ns = t.layout["s"].stop
+        labels = np.r_[t.piston, st.q[:ns]]
+        if labels[-1] < t.L - ell:
+            raise SolverError(f"{self._where(st.n)}: the liquid flows back into the tube at its outlet, which the coupled "
+                              "tube does not handle in this version", step=st.n, time=st.t)
+        inject = labels[0] >= 0.5 * ell
+        remove = len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L
+        t.c0[0] = t.piston
+        if not (inject or remove):
+            return
+        cfg, Lam, r, origin = self._oc_level(st)
+        vel, Jx, _, X, dX = self._oc_velocities(st, cfg, Lam, r)
+        mb0 = t.label_mass_all
+        Xdot = (Jx @ vel).reshape(-1, 3)
+        share0 = (Jx[:, :n6].T @ (np.repeat(mb0, 3) * Xdot.ravel())).reshape(n1, 6)[:, :3]
+        kin0 = mb0 * np.sum(Xdot * dX, axis=1)
+        E0 = 0.5 * float(np.sum(mb0 * np.sum(Xdot * Xdot, axis=1))) - float(np.sum(mb0 * ((X + origin) @ rod.g)))
+        extra = np.zeros(len(labels))
+        extra[nf:] = st.p[:ns] - kin0[nf:]  # the pressures' impulses in the labels' momenta: kept
+        s_all, sdot, vpred = labels.copy(), vel[n6:].copy(), np.r_[t.U_in, st.v[:ns]]
+        m_all, fresh = t.m.copy(), np.zeros(len(t.m), bool)
+        lam_t, lam_r = st.lam[:t.nlam].copy(), st.lam[t.nlam:]
+        injected = False
+        for _ in range(4 * t.M_max + 8):
+            if s_all[0] >= 0.5 * ell:
+                s_all, sdot, vpred = np.r_[s_all[0] - ell, s_all], np.r_[t.U_in, sdot], np.r_[t.U_in, vpred]
+                extra, m_all, fresh = np.r_[0.0, extra], np.r_[t.m_in, m_all], np.r_[True, fresh]
+                lam_t = np.r_[lam_t[0], lam_t]
+                injected = True
+                continue
+            if len(m_all) > 2 and 0.5 * (s_all[-2] + s_all[-1]) >= t.L:
+                s_all, sdot, vpred, extra = s_all[:-1], sdot[:-1], vpred[:-1], extra[:-1]
+                m_all, fresh, lam_t = m_all[:-1], fresh[:-1], lam_t[:-1]
+                continue
+            break
+        if len(m_all) > t.M_max:
+            raise SolverError(f"{self._where(st.n)}: the open tube holds {len(m_all)} parcels, more than the run file's "
+                              f"{t.M_max} slots", step=st.n, time=st.t)
+        if np.any(fresh):
+            m_all[fresh] = t.rho0 * m.open_volumes(s_all, Lam, r)[fresh]
+        mass_old = float(np.sum(t.m))
+        t.m, t.S, t.piston = m_all, np.zeros(len(m_all)), float(s_all[0])
+        t._open_build()
+        mb1 = t.label_mass_all
+        Jx1, _, X1, dX1 = self._oc_metric(s_all, r)
+        Xdot1 = (Jx1 @ np.r_[vel[:n6], sdot]).reshape(-1, 3)
+        share1 = (Jx1[:, :n6].T @ (np.repeat(mb1, 3) * Xdot1.ravel())).reshape(n1, 6)[:, :3]
+        kin1 = mb1 * np.sum(Xdot1 * dX1, axis=1)
+        E1 = 0.5 * float(np.sum(mb1 * np.sum(Xdot1 * Xdot1, axis=1))) - float(np.sum(mb1 * ((X1 + origin) @ rod.g)))
+        b = t.balance
+        b[5] += E1 - E0
+        b[6:9] += share1.sum(0) - share0.sum(0)
+        b[9] += float(np.sum(t.m)) - mass_old
+        if injected:
+            b[13] = float(kin1[0])
+        p_rod = st.p[ns:].copy()
+        p_rod[: 3 * n1] += (share1 - share0).ravel()
+        st.q = np.r_[s_all[nf:], st.q[ns:]]
+        st.p = np.r_[kin1[nf:] + extra[nf:], p_rod]
+        st.v = np.r_[vpred[nf:], st.v[ns:]]
+        st.lam, st.q_prev = np.r_[lam_t, lam_r], None
+        self._rebuild()
+
+    def _oc_monitors(self):
+        """Energy, momentum and mass of the open coupled tube with their balances (docs/theory.md §13.4)."""
+        m, st = self.model, self.state
+        t, rod = m.tube, m.rod
+        terms, P, mass, (cfg, Lam, r, origin, vel, Xdot, dX) = self._oc_energy(st)
+        b = t.balance
+        E = sum(terms.values())
+        out = {"kinetic_energy": terms["fluid_kinetic"] + terms["rod_kinetic"],
+               "energy_fluid_kinetic": terms["fluid_kinetic"], "energy_rod_kinetic": terms["rod_kinetic"]}
+        for k in ("bending_torsion", "stretch_shear", "gravity", "load"):
+            out[f"energy_{k}"] = terms[k]
+        out["energy"] = E
+        out["mass"] = mass
+        out["linear_momentum"] = P
+        n1 = rod.N + 1
+        p = st.p[m.rod_p][: 3 * n1].reshape(n1, 3)
+        Pi = st.p[m.rod_p][3 * n1:].reshape(n1, 3)
+        out["angular_momentum"] = np.cross(origin, P) + np.cross(r, p).sum(0) + np.einsum("nij,nj->i", Lam, Pi)
+        out["energy_flux"] = b[5]
+        out["momentum_flux"] = b[6:9].copy()
+        out["mass_flux"] = b[9]
+        out["support_impulse"] = b[10:13].copy()
+        out["energy_balance"] = E - b[0] - b[5]
+        out["momentum_balance"] = P - b[1:4] - b[6:9]
+        out["mass_balance"] = mass - b[4] - b[9]
+        out["parcels"] = int(t.M)
+        V = m.open_volumes(cfg.s, Lam, r)
+        out["constraint_residual"] = float(np.max(np.abs(V / t.V0 - 1.0)))
+        out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
+        if rod.constrained:
+            from .rod_constraint import element_strain_residual
+
+            out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
+        out["newton_iterations"] = self.stats.iterations
+        return out
+
+    def _oc_fields(self):
+        """The open coupled tube's fields on the run file's fixed slots (docs/output.md)."""
+        m, st = self.model, self.state
+        t = m.tube
+        cfg, Lam, r, origin = self._oc_level(st)
+        geo = m.centreline(cfg.s, r)
+        Mx = t.M_max
+        lab = lambda x: np.r_[x, np.full((Mx + 1 - len(x),) + np.shape(x)[1:], np.nan)]  # noqa: E731
+        par = lambda x: np.r_[x, np.full(Mx - len(x), np.nan)]  # noqa: E731
+        ns = t.layout["s"].stop
+        u = np.r_[np.full(t.n_fixed, t.U_in), st.v[m.tube_p][:ns]] * np.linalg.norm(geo[4], axis=1)
+        return {"fluid/s": lab(cfg.s.copy()), "fluid/position": lab(geo[3] + origin),
+                "fluid/density": par(t.m / t.V0), "fluid/pressure": par(cfg.mu + t.p_ext),
+                "fluid/velocity": lab(u), "fluid/entropy": par(np.zeros(t.M)), "fluid/active": t.active_mask(),
+                "rod/r": r + origin, "rod/Lambda": Lam.copy()}
+
     def fields(self):
         """Field values at the current level, keyed by HDF5 path under /fields."""
         if self.open:
-            return self._open_fields()
+            return self._oc_fields() if self.model.coupled else self._open_fields()
         m, st = self.model, self.state
         out = {}
         t = m.tube

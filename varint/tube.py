@@ -96,7 +96,11 @@ class TubePart:
         self.forces = []
         #: open ends on the fixed straight centreline with a rigid wall (docs/theory.md §13): a varying set of labels
         #: (varint.open_ends); with a [wall] (not yet) the closed layout is built and the stepper refuses the run
-        self.open = self.open_ends and not self.coupled and (not self.has_wall or self.wall_dynamic)
+        if self.coupled:  # on a [rod]: an incompressible liquid in a rigid tube with a velocity inlet (§13.1, coupled)
+            self.open = (self.open_ends and not self.has_wall and self.incompressible
+                         and scene.fluid.ends.inflow == "velocity")
+        else:
+            self.open = self.open_ends and (not self.has_wall or self.wall_dynamic)
         if self.open:
             self._open_init()
         else:
@@ -215,6 +219,12 @@ class TubePart:
             # a dynamic wall (docs/theory.md §13.1): the kernels on the lattice extended beyond each end, far enough for
             # the labels of the end parcels (a label beyond it stops the run: "left the tube")
             self.ext = ExtendedLattice(self.N, self.ds, int(math.ceil(4.0 * self.ell_in / self.ds)) + 1)
+        if self.coupled:
+            from .open_ends import CoupledExtension
+
+            # the coupled tube (docs/theory.md §13.1): the centreline continued straight beyond each end, far enough
+            # for the end parcels' labels and the Catmull-Rom stencil around them
+            self.ext = CoupledExtension(self.N, self.ds, int(math.ceil(2.0 * self.ell_in / self.ds)) + 2)
         self.V_in = self.duct.A_in * self.ell_in
         self.m_in = rho_in * self.V_in
         self.S_in = float(self.eos.entropy(rho_in, self.p_in)) if self.eos is not None and self.eos.has_entropy else 0.0
@@ -236,7 +246,9 @@ class TubePart:
         #: axial momentum and mass summed over the run (docs/theory.md §13.4)
         self.balance = np.zeros(6)
         self.lattice_version = 0
-        self.forces = [EndPressures(self)]
+        # the coupled tube's liquid works with gauge pressures p - p_ext (its multipliers; the kernels' p_ext is 0): a free
+        # jet at the outlet then carries no end force
+        self.forces = [] if self.coupled else [EndPressures(self)]
         self.terms = []
         self._open_build()
         nf = self.n_fixed
@@ -245,6 +257,15 @@ class TubePart:
         self.v_init = np.concatenate([u[nf:], zR])
         self.p_init = self.mass * self.v_init
         self.lam_init = np.full(self.M, float(sc.fluid.pressure)) if self.incompressible else np.zeros(0)
+        if self.coupled:
+            self.lam_init = self.lam_init - self.p_ext
+            self.p_init = np.zeros_like(self.q_init)  # the Legendre map of the coupled tube (varint.model)
+
+    def coupled_rebase(self, V):
+        """The coupled tube's parcels at t = 0 hold their stretched volumes ``V`` on the rod's initial centreline (so the
+        constraints hold at the start): masses rho V."""
+        self.m = self.rho0 * np.asarray(V, dtype=float)
+        self._open_build()
 
     def label_masses(self, m=None):
         """Lumped label masses of an open lattice: (m_{k-1} + m_k)/2 inside, half a parcel at each end."""
@@ -290,6 +311,12 @@ class TubePart:
         self.label_mass_config = mb
         self.label_mass_all = mb
         self.mass = mb[nf:].copy()
+        if self.coupled:  # the labels' kinetic energy is the coupled term's (varint.step_terms.CoupledFluid)
+            self.mass[:] = 0.0
+            self.V0 = self.m / self.rho0
+            self.terms = []
+            self.lattice_version += 1
+            return
         if self.has_wall:
             self.mass = np.concatenate([self.mass, self.wall.a * self.node_weights[1:-1]])
         if self.incompressible:
@@ -487,7 +514,7 @@ class TubePart:
         if not self.has_fluid:
             return None
         if self.open:  # the extended line: finite, increasing labels (a wall's: within its extended lattice)
-            if self.has_wall:
+            if self.has_wall or self.coupled:
                 return label_problem(cfg.s + self.ext.shift, self.nR + 2 * self.ext.E, self.ds, False)
             return label_problem(cfg.s, self.nR, self.ds, False, tube=False)
         return label_problem(cfg.s, self.nR, self.ds, self.periodic)
