@@ -305,9 +305,12 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     noise): code 0 converged, 1 not finite, 2 diverging, 3 no convergence, 4 singular; noise: the size of the update
     that stopped contracting while polishing (the measured round-off floor of the update), or -1.
 
-    One rule beyond varint.newton.newton: once ``tol`` is met, the iteration stops when the next update predicted
-    from the contraction rate, rate x err, is below ``floor_est`` (> 0: a round-off floor measured on an earlier
-    step); the stepper would take that update and one or two more of round-off size to see that they stop shrinking."""
+    Rules beyond varint.newton.newton, all from ``floor_est`` (> 0: the round-off floor of the update measured on an
+    earlier step, the size of an update that stopped contracting): (a) once ``tol`` is met (or ``100 tol`` when the
+    floor itself is within 10x of tol, where the stepper accepts a stagnating update), the iteration stops when the
+    next update predicted from the contraction rate, rate x err, is below the floor: the stepper would take that
+    update and one or two more of round-off size to see that they stop shrinking; (b) an update within twice the
+    floor that stops contracting is round-off: no new Jacobian is spent on it."""
     n = z.shape[0]
     n_res = 0
     n_jac = 0
@@ -346,10 +349,11 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
             zmax = max(zmax, abs(z[k]) / scale[k])
         it += 1
         floor = 8.0 * EPS * zmax
+        if floor_est > 0.0 and err_prev > 0.0 and (err / err_prev) * err <= floor_est and (
+                err <= tol or (err <= 100.0 * tol and 10.0 * floor_est >= tol)):
+            _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # (a) the next update would be round-off
+            return
         if err <= tol or err <= floor:
-            if floor_est > 0.0 and err_prev > 0.0 and (err / err_prev) * err <= floor_est:
-                _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # the next update would be round-off
-                return
             contracting = polished == 0 or err < 0.7 * err_prev
             if polished < polish and err > floor and contracting:
                 polished += 1
@@ -371,10 +375,16 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
                 recent = jac_iter >= 0 and jac_iter >= it - 2
                 if recent and err <= 100.0 * tol:
                     _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # stagnated at round-off
+                    stats[7] = err
                     return
-                if STAGNATION_RATE <= rate < MAX_ROUNDOFF_RATE and rate_prev <= rate_refresh and _k_floor_ok(dz, z, scale):
-                    _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # stopped at the round-off floor
-                    return
+                if STAGNATION_RATE <= rate < MAX_ROUNDOFF_RATE and rate_prev <= rate_refresh:
+                    if _k_floor_ok(dz, z, scale):
+                        _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)  # stopped at the round-off floor
+                        stats[7] = err
+                        return
+                    if err <= 2.0 * floor_est:  # (b); not recorded as a new floor (it would ratchet up)
+                        _k_stats(stats, 1, it, n_res, n_jac, err, 1, 0)
+                        return
                 growing = (not np.isfinite(rate)) or rate >= 1.0
                 n_growing = n_growing + 1 if growing else 0
                 if n_growing >= 3:
