@@ -1,0 +1,167 @@
+"""The compiled rod step (varint/rod_step_fast.py) against the stepper (Simulation.step) and PyElastica's step.
+
+Case: PyElastica's benchmark cantilever (scripts/bench_pyelastica.py: L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3,
+E = 1e6 Pa, G = E/1.5), released from the first Euler-Bernoulli mode shape with a 1 cm tip deflection, at the step
+of 64 steps per first period (h = T1/64, the step that gives a 5 % tip error over 10 periods at 100 elements:
+docs/performance.md "The rod against PyElastica").  Planar (3 unknowns per node) and 3D (6 per node) models at
+10 to 10^5 elements; both paths run the same number of steps from the same state, and their states are compared.
+
+Reported per size: microseconds per step of each path, Newton iterations and Jacobians per step, the ratio, and the
+largest relative difference of the two paths' level vectors; the slope of log(cost) against log(nodes) from 10^2 to
+10^5; PyElastica's PositionVerlet step on the same rod at 100 elements (if installed: pip install -e '.[compare]').
+
+Run:  python scripts/bench_rod_step_fast.py [--quick]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT.parent / "tests"))
+
+from bench_pyelastica import L, N_EL, RAD, RHO, mode_shape, reference  # noqa: E402
+from helpers import to_toml  # noqa: E402
+from test_rod import solid_section  # noqa: E402
+
+from varint import Simulation, build_model, parse_scene  # noqa: E402
+from varint.lie import cay  # noqa: E402
+from varint.rod_step_fast import FastRodStep  # noqa: E402
+
+E = 1e6
+
+
+def cantilever(N, h, dim):
+    sec = solid_section(E, RAD, RHO)
+    d = {"title": "cantilever", "tube": {"length": L, "nodes": N + 1, "radius": RAD},
+         "rod": dict(sec, dimension=dim, measure="reference", ends={"s0": "clamped", "sL": "free"}),
+         "time": {"step": h, "end": 1.0}}
+    model = build_model(parse_scene(to_toml(d)))
+    s = np.linspace(0.0, L, N + 1)
+    y, dy = mode_shape(s)
+    model.rod.set_configuration(cay(np.stack([0 * s, 0 * s, 2 * np.tan(0.5 * np.arctan(dy))], axis=1)),
+                                np.stack([s, y, 0 * s], axis=1))
+    return model
+
+
+def steps_for(N, budget):
+    return int(max(3, min(400, budget / N)))
+
+
+def run_old(model, n):
+    sim = Simulation(model)
+    sim.step()  # compiled kernels, first Jacobian
+    its = jacs = 0
+    t0 = time.perf_counter()
+    for _ in range(n):
+        sim.step()
+        its += sim.stats.iterations
+        jacs += sim.stats.n_jacobian
+    return (time.perf_counter() - t0) / n, its / n, jacs / n, sim.state
+
+
+def run_fast(model, n):
+    fast = FastRodStep(model)
+    st = fast.step(Simulation(model).state)
+    its = jacs = 0
+    t0 = time.perf_counter()
+    for _ in range(n):
+        st = fast.step(st)
+        its += fast.last["iterations"]
+        jacs += fast.last["n_jacobian"]
+    return (time.perf_counter() - t0) / n, its / n, jacs / n, st, fast.fallbacks
+
+
+def pyelastica_step_cost(h_period, n=20000):
+    """PositionVerlet on the same rod at 100 elements, at half its stability limit (scripts/bench_pyelastica.py)."""
+    try:
+        import elastica as ea
+    except ImportError:
+        return None
+
+    class Sim(ea.BaseSystemCollection, ea.Constraints):
+        pass
+
+    sim = Sim()
+    rod = ea.CosseratRod.straight_rod(N_EL, np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), L, RAD,
+                                      RHO, youngs_modulus=E, shear_modulus=E / 1.5)
+    s = np.linspace(0.0, L, N_EL + 1)
+    rod.position_collection[1, :] = mode_shape(s)[0]
+    chord = np.diff(rod.position_collection, axis=1)
+    d3 = chord / np.linalg.norm(chord, axis=0)
+    d1 = np.zeros_like(d3)
+    d1[2] = 1.0
+    rod.director_collection[0] = d1
+    rod.director_collection[1] = np.cross(d3.T, d1.T).T
+    rod.director_collection[2] = d3
+    sim.append(rod)
+    sim.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
+    sim.finalize()
+    stepper = ea.PositionVerlet()
+    dt = 1.13e-4  # half the largest stable step at E = 1e6 (docs/performance.md)
+    t = 0.0
+    for _ in range(200):
+        t = stepper.step(sim, t, dt)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        t = stepper.step(sim, t, dt)
+    return (time.perf_counter() - t0) / n, dt
+
+
+def main():
+    quick = "--quick" in sys.argv
+    T1 = 2 * math.pi / reference(E)
+    h = T1 / 64
+    sizes = [10, 100, 1000] if quick else [10, 100, 1000, 10000, 100000]
+    budget = 2e4 if quick else 4e4
+    print(f"# h = T1/64 = {h:.4g} s (T1 = {T1:.4g} s); one process, {'quick' if quick else 'full'} run\n")
+    rows = {}
+    print("| model | elements | steps timed | stepper µs/step | it./step | Jac./step | fast µs/step | it./step | "
+          "Jac./step | stepper / fast | max rel. diff. of q |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for dim in (2, 3):
+        for N in sizes:
+            n = steps_for(N, budget)
+            model = cantilever(N, h, dim)
+            t_old, it_old, j_old, s_old = run_old(model, n)
+            t_fast, it_fast, j_fast, s_fast, fb = run_fast(cantilever(N, h, dim), n)
+            diff = float(np.abs(s_old.q - s_fast.q).max() / np.abs(s_old.q).max())
+            rows[(dim, N)] = (t_old, t_fast)
+            print(f"| {'planar' if dim == 2 else '3D'} cantilever | {N} | {n} | {t_old * 1e6:.4g} | {it_old:.2f} | "
+                  f"{j_old:.2f} | {t_fast * 1e6:.4g} | {it_fast:.2f} | {j_fast:.2f} | {t_old / t_fast:.1f} | {diff:.1e}"
+                  + (f" ({fb} fallbacks)" if fb else "") + " |", flush=True)
+    print()
+    big = [N for N in sizes if N >= 100]
+    if len(big) >= 2:
+        print("| model | path | slope of log(cost) against log(nodes), "
+              f"{big[0]}-{big[-1]} elements |")
+        print("|---|---|---|")
+        for dim in (2, 3):
+            x = np.log([N + 1 for N in big])
+            for k, name in ((0, "stepper"), (1, "fast")):
+                y = np.log([rows[(dim, N)][k] for N in big])
+                slope = np.polyfit(x, y, 1)[0]
+                print(f"| {'planar' if dim == 2 else '3D'} | {name} | {slope:.3f} |")
+        print()
+    pe = pyelastica_step_cost(T1, 5000 if quick else 20000)
+    if pe is None:
+        print("PyElastica not installed: pip install -e '.[compare]'")
+        return
+    t_pe, dt_pe = pe
+    t_fast = rows[(2, 100)][1]
+    t_old = rows[(2, 100)][0]
+    print("| 100 elements, planar | µs/step | ratio to PyElastica's step | step [s] | wall per simulated s |")
+    print("|---|---|---|---|---|")
+    print(f"| PyElastica PositionVerlet | {t_pe * 1e6:.4g} | 1 | {dt_pe:.3g} | {t_pe / dt_pe:.3g} |")
+    print(f"| varint stepper | {t_old * 1e6:.4g} | {t_old / t_pe:.1f} | {h:.3g} | {t_old / h:.3g} |")
+    print(f"| varint fast step | {t_fast * 1e6:.4g} | {t_fast / t_pe:.1f} | {h:.3g} | {t_fast / h:.3g} |")
+
+
+if __name__ == "__main__":
+    main()
