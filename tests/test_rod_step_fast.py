@@ -235,3 +235,20 @@ def test_a_step_that_turns_a_node_by_more_than_ninety_degrees_is_refused():
     with pytest.raises(SolverError, match="turns by|Newton failed"):
         for _ in range(3):
             st = fast.step(st)
+
+
+def test_a_failed_chord_iteration_falls_back_to_the_steppers_damped_newton():
+    """With one chord iteration allowed the compiled Newton cannot converge; the step is then solved by
+    varint.newton.newton_damped on Step (the same equations) and still lands on the stepper's state."""
+    model = _cantilever()
+    ref = Simulation(model)
+    fast = FastRodStep(model, ref.h)
+    fast.ci[5] = 1  # max_iter of the compiled iteration
+    fast.ci[6] = 0  # no polishing either
+    st = ref.state.copy()
+    for _ in range(3):
+        ref.step()
+        st = fast.step(st)
+    assert fast.fallbacks == 3
+    assert np.abs(st.q - ref.state.q).max() <= 1e-10 * np.abs(ref.state.q).max()
+    assert np.abs(st.p - ref.state.p).max() <= 1e-10 * np.abs(ref.state.p).max()
