@@ -8,7 +8,9 @@ docs/performance.md "The rod against PyElastica").  Planar (3 unknowns per node)
 
 Reported per size: microseconds per step of each path, Newton iterations and Jacobians per step, the ratio, and the
 largest relative difference of the two paths' level vectors; the slope of log(cost) against log(nodes) from 10^2 to
-10^5; PyElastica's PositionVerlet step on the same rod at 100 elements (if installed: pip install -e '.[compare]').
+10^5; the fast step's cost at 100 elements against the steps per period (the Newton iterations a step needs follow
+the motion per step); PyElastica's PositionVerlet step on the same rod at 100 elements (if installed:
+pip install -e '.[compare]').
 
 Run:  python scripts/bench_rod_step_fast.py [--quick]
 """
@@ -149,6 +151,14 @@ def main():
                 slope = np.polyfit(x, y, 1)[0]
                 print(f"| {'planar' if dim == 2 else '3D'} | {name} | {slope:.3f} |")
         print()
+    print("| planar, 100 elements: steps per first period | h [s] | fast µs/step | it./step | Jac./step |")
+    print("|---|---|---|---|---|")
+    per_period = {}
+    for k in (16, 64, 256, 1024, 4096):
+        t_k, it_k, j_k, _, _ = run_fast(cantilever(100, T1 / k, 2), 400)
+        per_period[k] = t_k
+        print(f"| {k} | {T1 / k:.3g} | {t_k * 1e6:.4g} | {it_k:.2f} | {j_k:.2f} |", flush=True)
+    print()
     pe = pyelastica_step_cost(T1, 5000 if quick else 20000)
     if pe is None:
         print("PyElastica not installed: pip install -e '.[compare]'")
@@ -161,6 +171,9 @@ def main():
     print(f"| PyElastica PositionVerlet | {t_pe * 1e6:.4g} | 1 | {dt_pe:.3g} | {t_pe / dt_pe:.3g} |")
     print(f"| varint stepper | {t_old * 1e6:.4g} | {t_old / t_pe:.1f} | {h:.3g} | {t_old / h:.3g} |")
     print(f"| varint fast step | {t_fast * 1e6:.4g} | {t_fast / t_pe:.1f} | {h:.3g} | {t_fast / h:.3g} |")
+    for k in (1024, 4096):
+        print(f"| varint fast step, {k} steps per period | {per_period[k] * 1e6:.4g} | {per_period[k] / t_pe:.1f} | "
+              f"{T1 / k:.3g} | {per_period[k] / (T1 / k):.3g} |")
 
 
 if __name__ == "__main__":
