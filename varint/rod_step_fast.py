@@ -41,7 +41,7 @@ from numba import njit
 
 from .errors import SolverError
 from .newton import newton_damped
-from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column,
+from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column,
                   _k_element, unpack_level)
 
 __all__ = ["FastRodStep", "supports"]
@@ -52,6 +52,12 @@ STAGNATION_RATE = 0.5
 ROUNDOFF_BAND = 100.0
 MAX_ROUNDOFF_RATE = 10.0
 CHORD_ITERATIONS = 30  #: iterations allowed on an inherited factorisation (Simulation._newton_options)
+#: refresh the Jacobian when a chord iteration contracts by less than this.  The stepper's is 0.15
+#: (``RATE_REFRESH_ROD``: its Jacobian costs 7-15 of its residuals); here a compiled residual costs ~12 us and a
+#: compiled Jacobian ~550 us at 100 planar elements (~40 residuals, the complex steps), so fewer refreshes pay:
+#: measured on the released cantilever at 100 elements, 0.15 / 0.3 / 0.5 gave 594 / 506 / 430 us per step at 16
+#: steps per period (0.43 / 0.25 / 0.18 Jacobians per step) and 298 / 267 / 269 at 64 (shared machine)
+RATE_REFRESH_FAST = 0.5
 
 
 def supports(model):
@@ -517,10 +523,12 @@ class FastRodStep:
     40)``, as :class:`varint.stepper.Simulation`); ``predictor``: "constant" (the last step's (b, xi), the
     stepper's; default) or "linear" (the last two steps' extrapolated).  ``early_stop``: stop once the next update
     predicted from the contraction rate is below the round-off floor measured on an earlier step (``_k_step``);
-    False polishes every step exactly as the stepper does.
+    False polishes every step exactly as the stepper does.  ``rate_refresh``: the contraction rate above which the
+    Jacobian is refreshed (``RATE_REFRESH_FAST``; the stepper's ``RATE_REFRESH_ROD`` repeats its choices).
     """
 
-    def __init__(self, model, h=None, tol=None, max_iter=None, predictor="constant", early_stop=True):
+    def __init__(self, model, h=None, tol=None, max_iter=None, predictor="constant", early_stop=True,
+                 rate_refresh=RATE_REFRESH_FAST):
         why = supports(model)
         if why is not None:
             raise SolverError(f"rod step: the fast path does not run this model ({why})")
@@ -573,7 +581,7 @@ class FastRodStep:
         vidx[:, 3:] = 3 * n1 + 3 * np.arange(n1)[:, None] + np.arange(3)
         self.vsel = np.ascontiguousarray(vidx[rod.mask])
         # constants and preallocated buffers (reused by every step and every iteration)
-        self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, RATE_REFRESH_ROD, -1.0])
+        self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, float(rate_refresh), -1.0])
         self.cv = np.ascontiguousarray(np.stack([inertia, J, K, g, force, torque, rod.period]), dtype=float)
         self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
                             0, 0], dtype=np.int64)
