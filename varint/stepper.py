@@ -1068,9 +1068,10 @@ class Simulation:
         return out
 
     # -- open ends on the coupled tube (docs/theory.md §13.1-13.4, the tube on a [rod]) ---------------------------
-    # TubePart.balance of the coupled open tube (14 entries): E0, P0 (3), mass0, the accumulated energy flux, momentum
-    # flux (3), mass flux, the supports' impulse (3, part of the momentum flux) and the piston's last discrete momentum
-    # D2 L_d (for the impulse of the inlet at the next level)
+    # TubePart.balance of the coupled open tube (15 entries): E0, P0 (3), mass0, the accumulated energy flux, momentum
+    # flux (3), mass flux, the supports' impulse (3, part of the momentum flux), the kinetic part of
+    # the piston's last discrete momentum D2 L_d (for the inlet's kinetic impulse at the next level and the released
+    # piston's momentum; a new piston's: its kinetic momentum) and the inlet's potential work over the last step
 
     def _oc_level(self, st):
         """(configuration of the tube, frames, positions, origin) of the level ``st``."""
@@ -1132,30 +1133,59 @@ class Simulation:
         return vel, Jx, rod_diag, X, dX
 
     def _oc_energy(self, st):
-        """Energy terms, stored linear momentum and mass of the open coupled tube at the level ``st``."""
+        """Energy terms, stored linear momentum and mass of the open coupled tube at the level ``st``.
+
+        The energy of the step that ended at the level (as the closed coupled tube's with multipliers, §10.9): the
+        kinetic energy of its velocities, (X_k^{n+1} - X_k^n)/h for every label (the piston's included) and the nodes'
+        (r^{n+1} - r^n)/h and xi/h, plus the potential at its midpoint data (strain midpoint, rbar, sbar); record 0:
+        the initial data's (velocities from the momenta in the kinetic metric, the potential at the level)."""
+        from .coupled_geometry import centreline_and_weights  # noqa: F401  (m.centreline)
+        from .rod import CHI
+
         m = self.model
         t, rod = m.tube, m.rod
-        n1 = rod.N + 1
+        n1, h = rod.N + 1, self.h
         cfg, Lam, r, origin = self._oc_level(st)
-        vel, Jx, rod_diag, X, dX = self._oc_velocities(st, cfg, Lam, r)
         mbar = t.label_mass_all
-        Xdot = (Jx @ vel).reshape(-1, 3)
+        sec = rod.section
+        if st.q_prev is None:  # t = 0: the initial data's velocities, from the momenta in the kinetic metric
+            vel, Jx, rod_diag, X, dX = self._oc_velocities(st, cfg, Lam, r)
+            Xdot = (Jx @ vel).reshape(-1, 3)
+            Kr = 0.5 * float(np.sum(rod_diag * vel[: 6 * n1] ** 2))
+            Om, Ga = rod.strains(Lam, r)
+            rb, ob, Xb = r, origin, X
+        else:  # the step that ended here
+            Lp, rp, op = unpack_level(st.q_prev[m.rod_q], m.N)
+            rp = rp + (op - origin)  # positions relative to this level's origin
+            ns = t.layout["s"].stop
+            s_prev = np.r_[np.full(t.n_fixed, t.piston - h * t.U_in), st.q_prev[:ns]]
+            _, _, _, X, dX, _ = m.centreline(cfg.s, r)
+            Xdot = (X - m.centreline(s_prev, rp)[3]) / h
+            vr = (r - rp) / h
+            w = cay_inv(np.swapaxes(Lp, 1, 2) @ Lam) / h
+            Kr = 0.5 * float(np.sum(rod.node_mass[:, None] * vr * vr) + np.sum(rod.node_inertia * w * w))
+            Om0, Ga0 = rod.strains(Lp, rp)
+            Om1, Ga1 = rod.strains(Lam, r)
+            Om, Ga = 0.5 * (Om0 + Om1), 0.5 * (Ga0 + Ga1)
+            rb, ob = 0.5 * (r + rp), origin
+            Xb = m.centreline(0.5 * (cfg.s + s_prev), rb)[3]
         Kf = 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))
-        Kr = 0.5 * float(np.sum(rod_diag * vel[: 6 * n1] ** 2))
-        z3 = np.zeros((n1, 3))
-        pe = rod.level_energy(Lam, r, z3, z3, origin)
-        Ugf = -float(np.sum(mbar * ((X + origin) @ rod.g)))
-        terms = {"fluid_kinetic": Kf, "rod_kinetic": Kr, "bending_torsion": pe["bending_torsion"],
-                 "stretch_shear": pe["stretch_shear"], "gravity": pe["gravity"] + Ugf, "load": pe["load"]}
+        dG = Ga - CHI
+        bend = float(np.sum(rod.ds * 0.5 * np.sum(sec.J * Om * Om, axis=-1)))
+        stretch = float(np.sum(rod.ds * 0.5 * np.sum(rod.K_energy * dG * dG, axis=-1)))
+        grav = -float(np.sum(sec.rhoA * rod.w * ((rb + ob) @ rod.g))) - float(np.sum(mbar * ((Xb + ob) @ rod.g)))
+        load = -float(np.dot(rod.force, rb[-1] + ob))
+        terms = {"fluid_kinetic": Kf, "rod_kinetic": Kr, "bending_torsion": bend, "stretch_shear": stretch,
+                 "gravity": grav, "load": load}
         P = st.p[m.rod_p][: 3 * n1].reshape(n1, 3).sum(0)
         mass = float(np.sum(rod.node_mass) + np.sum(t.m))
-        return terms, P, mass, (cfg, Lam, r, origin, vel, Xdot, dX)
+        return terms, P, mass, (cfg, Lam, r, origin, None, Xdot, dX)
 
     def _oc_start(self):
         """t = 0: the balances' reference values, the piston's momentum, then the ends' rule on the initial lattice."""
         t, st = self.model.tube, self._state
         terms, P, mass, (_, _, _, _, _, Xdot, dX) = self._oc_energy(st)
-        b = np.zeros(14)
+        b = np.zeros(15)
         b[0], b[1:4], b[4] = sum(terms.values()), P, mass
         b[13] = t.label_mass_all[0] * float(Xdot[0] @ dX[0])
         t.balance = b
@@ -1165,8 +1195,11 @@ class Simulation:
     def _oc_fluxes(self, q0, p0, z):
         """Book one step's boundary terms of the open coupled tube (docs/theory.md §13.4) and move the piston.
 
-        Energy: the inlet's work U_in I_n, I_n = pi^-_n - pi^+_n the piston's impulse at level n (pi^- = -D1 L_d of this
-        step, pi^+ = D2 L_d of the last, on the piston's label).  Momentum: gravity (and a dead tip force) on rod and
+        The energy (the monitor) is the kinetic energy of the step that ended at the level (the labels' and nodes'
+        velocities (X^{n+1} - X^n)/h, those of the updates) plus the potential at the level.
+        Energy: the inlet's work, h U_in dU/dsbar_0 against the midpoint potential (the flow work of the inlet's pressure)
+        plus U_in I_n, I_n = pi^-_n - pi^+_n the kinetic impulse of the piston at level n (pi^- = -D1 of the kinetic term
+        in this step, pi^+ = its D2 in the last, on the piston's label).  Momentum: gravity (and a dead tip force) on rod and
         liquid, h (M_tot g + F), and the supports' impulse -(p_n + D1 L_d) on the held components (their rows are not
         solved): with these sum_j p_j changes exactly as the step's equations say, the kernels being translation
         invariant."""
@@ -1177,9 +1210,13 @@ class Simulation:
         fluid = next(x for x in self.scheme.terms if x.name == "fluid")
         pot, kin = fluid._parts(pt)
         if t.n_fixed:
-            pi_minus = -float(pot.D1.s[0] + kin.D1.s[0])
-            b[5] += t.U_in * (pi_minus - b[13])
-            b[13] = float(pot.D2.s[0] + kin.D2.s[0])
+            # the inlet's work: its force against the midpoint potential over the step, h U_in dU/dsbar_0 (the flow
+            # work of the inlet pressure, the piston's weight), and U_in times the kinetic impulse at level n
+            W_pot = -t.U_in * float(pot.D1.s[0] + pot.D2.s[0])
+            # the energy is the step's (its midpoint's potential): the potential work between two midpoints is half
+            # of each step's (the first step: half of its own)
+            b[5] += t.U_in * (-float(kin.D1.s[0]) - b[13]) + 0.5 * (W_pot + b[14])
+            b[13], b[14] = float(kin.D2.s[0]), W_pot
         d = self.scheme._derivatives(pt, 0)
         for force in m.forces:
             force.add(pt, d, 0)
@@ -1198,46 +1235,59 @@ class Simulation:
         The tube holds the parcels whose centres are in it: when the piston passes half an inflow parcel beyond s = 0 it
         is released and a new piston is placed an inflow parcel upstream on the extended centreline (the new parcel's
         mass: the liquid's density times its stretched volume there); when the last parcel's centre passes s = L that
-        parcel and the last label are dropped.  Every label and node keeps its level velocity (from the momenta in the
-        kinetic metric); the momenta change by the fluid's share (sum_k mbar_k N_j(s_k) Xdot_k on the nodes,
-        mbar_k Xdot_k . X'_k on the labels) of the new lattice minus the old one's, the rest of each momentum (the
-        pressures' and supports' impulses) is kept.  What the change adds is booked as the fluxes."""
+        parcel and the last label are dropped.  The stored momenta are kept and change only by what the changed label
+        masses carry: dmbar_k Xdot_k on the nodes (weights N_j(s_k)) and dmbar_k Xdot_k . X'_k on the labels, with
+        Xdot_k the label's velocity over the step that just ended, (X(s_k^{n+1}; r^{n+1}) - X(s_k^n; r^n)) / h (a new
+        piston's: as if it had moved with the old one).  The released piston takes the kinetic part of its discrete
+        momentum D2 L_d of that step, scaled to its new mass: its potential part, had it been free, would be the
+        half-step impulse of the pressure difference across it and of its weight, which cancel in a steady flow (the
+        hydrostatic gradient; all pressures equal without gravity).  What the change adds is booked as the fluxes."""
         m = self.model
         t, rod = m.tube, m.rod
-        nf, ell, n1 = t.n_fixed, t.ell_in, rod.N + 1
-        n6 = 6 * n1
+        nf, ell, n1, h = t.n_fixed, t.ell_in, rod.N + 1, self.h
         ns = t.layout["s"].stop
         labels = np.r_[t.piston, st.q[:ns]]
         if labels[-1] < t.L - ell:
             raise SolverError(f"{self._where(st.n)}: the liquid flows back into the tube at its outlet, which the coupled "
                               "tube does not handle in this version", step=st.n, time=st.t)
-        inject = labels[0] >= 0.5 * ell
-        remove = len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L
+        tie = 1e-9 * ell  # uniform flow meets both thresholds at the same level: round-off must not split them
+        inject = labels[0] >= 0.5 * ell - tie
+        remove = len(t.m) > 2 and 0.5 * (labels[-2] + labels[-1]) >= t.L - tie
         t.c0[0] = t.piston
         if not (inject or remove):
             return
-        cfg, Lam, r, origin = self._oc_level(st)
-        vel, Jx, _, X, dX = self._oc_velocities(st, cfg, Lam, r)
-        mb0 = t.label_mass_all
-        Xdot = (Jx @ vel).reshape(-1, 3)
-        share0 = (Jx[:, :n6].T @ (np.repeat(mb0, 3) * Xdot.ravel())).reshape(n1, 6)[:, :3]
-        kin0 = mb0 * np.sum(Xdot * dX, axis=1)
-        E0 = 0.5 * float(np.sum(mb0 * np.sum(Xdot * Xdot, axis=1))) - float(np.sum(mb0 * ((X + origin) @ rod.g)))
-        extra = np.zeros(len(labels))
-        extra[nf:] = st.p[:ns] - kin0[nf:]  # the pressures' impulses in the labels' momenta: kept
-        s_all, sdot, vpred = labels.copy(), vel[n6:].copy(), np.r_[t.U_in, st.v[:ns]]
+        Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
+        if st.q_prev is not None:
+            _, r_prev, o_prev = unpack_level(st.q_prev[m.rod_q], m.N)
+            labels_prev = np.r_[t.piston - h * t.U_in, st.q_prev[:ns]]
+        else:  # t = 0: the initial data's velocities (the Legendre map of varint.model)
+            leg = m.initial_legendre()
+            r_prev, o_prev = r - h * rod.v0 * rod.mask[:, :3], origin
+            labels_prev = labels - h * leg["sdot"]
+
+        def velocity(s1, s0):
+            return (m.centreline(s1, r)[3] + origin - m.centreline(s0, r_prev)[3] - o_prev) / h
+
+        s_all, prev_all, vpred = labels.copy(), labels_prev.copy(), np.r_[t.U_in, st.v[:ns]]
+        p_all = np.r_[np.nan, st.p[:ns]]  # the labels' momenta (the piston's is set below)
         m_all, fresh = t.m.copy(), np.zeros(len(t.m), bool)
+        mb_old = np.r_[t.label_mass_all]
         lam_t, lam_r = st.lam[:t.nlam].copy(), st.lam[t.nlam:]
-        injected = False
+        removed_s, removed_prev, removed_mb = [], [], []
+        injected = 0
         for _ in range(4 * t.M_max + 8):
-            if s_all[0] >= 0.5 * ell:
-                s_all, sdot, vpred = np.r_[s_all[0] - ell, s_all], np.r_[t.U_in, sdot], np.r_[t.U_in, vpred]
-                extra, m_all, fresh = np.r_[0.0, extra], np.r_[t.m_in, m_all], np.r_[True, fresh]
+            if s_all[0] >= 0.5 * ell - tie:
+                s_all, prev_all, vpred = np.r_[s_all[0] - ell, s_all], np.r_[prev_all[0] - ell, prev_all], np.r_[t.U_in, vpred]
+                p_all, mb_old = np.r_[np.nan, p_all], np.r_[0.0, mb_old]
+                m_all, fresh = np.r_[t.m_in, m_all], np.r_[True, fresh]
                 lam_t = np.r_[lam_t[0], lam_t]
-                injected = True
+                injected += 1
                 continue
-            if len(m_all) > 2 and 0.5 * (s_all[-2] + s_all[-1]) >= t.L:
-                s_all, sdot, vpred, extra = s_all[:-1], sdot[:-1], vpred[:-1], extra[:-1]
+            if len(m_all) > 2 and 0.5 * (s_all[-2] + s_all[-1]) >= t.L - tie:
+                removed_s.append(s_all[-1])
+                removed_prev.append(prev_all[-1])
+                removed_mb.append(mb_old[-1])
+                s_all, prev_all, vpred, p_all, mb_old = s_all[:-1], prev_all[:-1], vpred[:-1], p_all[:-1], mb_old[:-1]
                 m_all, fresh, lam_t = m_all[:-1], fresh[:-1], lam_t[:-1]
                 continue
             break
@@ -1246,27 +1296,40 @@ class Simulation:
                               f"{t.M_max} slots", step=st.n, time=st.t)
         if np.any(fresh):
             m_all[fresh] = t.rho0 * m.open_volumes(s_all, Lam, r)[fresh]
-        mass_old = float(np.sum(t.m))
+        mass_old, mb0_piston = float(np.sum(t.m)), float(t.label_mass_all[0])
         t.m, t.S, t.piston = m_all, np.zeros(len(m_all)), float(s_all[0])
         t._open_build()
-        mb1 = t.label_mass_all
-        Jx1, _, X1, dX1 = self._oc_metric(s_all, r)
-        Xdot1 = (Jx1 @ np.r_[vel[:n6], sdot]).reshape(-1, 3)
-        share1 = (Jx1[:, :n6].T @ (np.repeat(mb1, 3) * Xdot1.ravel())).reshape(n1, 6)[:, :3]
-        kin1 = mb1 * np.sum(Xdot1 * dX1, axis=1)
-        E1 = 0.5 * float(np.sum(mb1 * np.sum(Xdot1 * Xdot1, axis=1))) - float(np.sum(mb1 * ((X1 + origin) @ rod.g)))
+        mb_new = t.label_mass_all
+        # what changed: every label of the new lattice (dmbar, its velocity), and the removed ones (-mbar)
+        s_ch = np.r_[s_all, removed_s]
+        dmb = np.r_[mb_new - mb_old, -np.asarray(removed_mb)]
+        s_ch_prev = np.r_[prev_all, removed_prev]
+        Xdot = velocity(s_ch, s_ch_prev)
+        nodes, Nw, _, X, dX, _ = m.centreline(s_ch, r)
+        # the monitor's potential is the step's midpoint's: the changed masses' weight at their midpoint positions
+        Xb = m.centreline(0.5 * (s_ch + s_ch_prev), 0.5 * (r + r_prev + o_prev - origin))[3]
+        dP_nodes = np.zeros((n1, 3))
+        np.add.at(dP_nodes, nodes.ravel(), ((dmb[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))
         b = t.balance
-        b[5] += E1 - E0
-        b[6:9] += share1.sum(0) - share0.sum(0)
+        b[5] += float(np.sum(dmb * (0.5 * np.sum(Xdot * Xdot, axis=1) - (Xb + origin) @ rod.g)))
+        b[6:9] += dP_nodes.sum(0)
         b[9] += float(np.sum(t.m)) - mass_old
+        k = len(s_all)
+        lab_kin = mb_new * np.sum(Xdot[:k] * dX[:k], axis=1)
+        p_new = p_all + dmb[:k] * np.sum(Xdot[:k] * dX[:k], axis=1)
         if injected:
-            b[13] = float(kin1[0])
+            # the released piston (label `injected` now): its last D2 L_d, kinetic part at its new mass
+            j = injected
+            p_new[j] = b[13] * mb_new[j] / mb0_piston
+            p_new[:j] = lab_kin[:j]  # any further new labels: their kinetic momenta (the piston's, label 0, is data)
+            b[13] = float(lab_kin[0])
         p_rod = st.p[ns:].copy()
-        p_rod[: 3 * n1] += (share1 - share0).ravel()
+        p_rod[: 3 * n1] += dP_nodes.ravel()
         st.q = np.r_[s_all[nf:], st.q[ns:]]
-        st.p = np.r_[kin1[nf:] + extra[nf:], p_rod]
+        st.p = np.r_[p_new[nf:], p_rod]
         st.v = np.r_[vpred[nf:], st.v[ns:]]
-        st.lam, st.q_prev = np.r_[lam_t, lam_r], None
+        st.lam = np.r_[lam_t, lam_r]
+        st.q_prev = None if st.q_prev is None else np.r_[prev_all[nf:], st.q_prev[ns:]]  # on the new lattice
         self._rebuild()
 
     def _oc_monitors(self):
