@@ -1,0 +1,199 @@
+"""Open ends on the coupled tube (docs/theory.md §13.1-13.4): a pipe conveying liquid, stepped in time.
+
+The pipe is Païdoussis' (Fluid-Structure Interactions vol. 1 ch. 3): L = 1, EI = 1, M + m = 1 (so u = U sqrt(M) and
+frequencies and rates are dimensionless), an incompressible liquid in a rigid tube, entering through a velocity inlet
+at s = 0 (attached to the rod's s = 0 end) and leaving as a free jet.  Thresholds are the truths of
+varint.pipe_stability (eq. 3.70, an independent Galerkin solver), never varint's own output; the growth rate measured
+in a run is compared with varint.flowing_modes (a cross-check of the same lattice, not a truth).
+
+Which rod: the cantilever and the steady pipe use rod.constraint = "inextensible_unshearable" (Païdoussis' inextensible
+pipe; it removes the stiff axial modes whose parasitic midpoint mode the flow pumps, docs/theory.md §12); a straight
+inextensible rod between two pins has an indeterminate tension, so the pinned-pinned pipe is the nearly inextensible
+one (EA = 1e7 EI/L^2) on 10 elements, where that axial mode stays quiet (measured; on 20 elements at h = 1e-3 it grows,
+docs/validation.md "Open ends on the coupled tube").
+"""
+
+import numpy as np
+import pytest
+
+from varint import pipe_stability as ps
+from varint.errors import SceneError, SolverError
+from varint.model import build_model
+from varint.modes_api import scene_modes
+from varint.scene import parse_scene
+from varint.stepper import Simulation
+
+BETA = 0.2
+
+
+def pipe(ends=("clamped", "free"), u=1.0, nodes=21, dim=2, h=1e-3, constraint="inextensible_unshearable",
+         kick=0.0, profile="tip", gravity=0.0):
+    """A [rod] + [fluid] pipe with open ends at Païdoussis' (u, beta = 0.2): EI = 1, L = 1, M + m = 1."""
+    M, m, R = BETA, 1.0 - BETA, 0.01
+    U = float(u / np.sqrt(M))
+    pert = ""
+    if kick:
+        shape = ('shape = "step"\nfrom = 0.0\nto = 1.0' if profile == "tip"
+                 else 'shape = "cosine"\nwavelength = 2.0\nphase = -1.5707963267948966')
+        pert = f'[[rod.perturbation]]\nfield = "velocity"\n{shape}\namplitude = {kick!r}\n'
+    grav = f"[environment]\ngravity = [{float(gravity)!r}, 0.0, 0.0]\n" if gravity else ""
+    return parse_scene(f"""title = "pipe conveying liquid, open ends"
+[tube]
+length = 1.0
+nodes = {nodes}
+radius = {R!r}
+
+[rod]
+dimension = {dim}
+mass_per_length = {m!r}
+rotary_inertia = {m * 1e-6!r}
+bending_stiffness = 1.0
+torsional_stiffness = 1.0
+axial_stiffness = 1.0e7
+shear_stiffness = 1.0e7
+constraint = "{constraint}"
+ends = {{ s0 = "{ends[0]}", sL = "{ends[1]}" }}
+{pert}
+[fluid]
+model = "incompressible"
+density = {float(M / (np.pi * R * R))!r}
+velocity = {U!r}
+pressure = 1.0e5
+parcels = {nodes - 1}
+ends = {{ s0 = "inflow", sL = "outflow" }}
+
+{grav}
+[time]
+step = {h!r}
+end = {h!r}
+""")
+
+
+def run(scene, T, probe=-1):
+    """Step for T seconds; the lateral displacement of node ``probe`` at each level and the last monitors."""
+    sim = Simulation(build_model(scene))
+    n = int(round(T / sim.h))
+    t, y = np.empty(n), np.empty(n)
+    for i in range(n):
+        sim.step()
+        t[i], y[i] = sim.state.t, sim.fields()["rod/r"][probe, 1]
+    return sim, t, y
+
+
+def peak_rate(t, y, skip=1):
+    """Growth rate from the peaks of |y| (log-linear fit), leaving out the first ``skip`` (the kick's transient)."""
+    a = np.abs(y)
+    pk = [i for i in range(1, len(a) - 1) if a[i] >= a[i - 1] and a[i] > a[i + 1]]
+    assert len(pk) >= skip + 3, f"too few peaks ({len(pk)}) to fit a rate"
+    return np.polyfit(t[pk][skip:], np.log(a[pk][skip:]), 1)[0]
+
+
+def modes_rate(ends, u, nodes):
+    """The largest growth rate of varint.flowing_modes for the same lattice (the nearly inextensible rod: the
+    linearisation takes no constrained rod)."""
+    d = scene_modes(pipe(ends, u, nodes, constraint="none"), count=6)
+    return max(m["growth_rate"] for m in d["modes"])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_straight_pipe_with_steady_flow_stays_straight_and_its_balances_close(dim):
+    """Steady flow through an open straight cantilever (below its threshold): the uniform flow is an exact solution of
+    the open lattice — parcels injected and removed, the rod at rest — and the energy, momentum and mass balances (the
+    fluxes of the entering and leaving parcels, the inlet's work, the clamp's impulse) close to 1e-8 relative."""
+    sim, t, y = run(pipe(u=2.0, nodes=11, dim=dim, h=4e-3), 0.5)  # 2.2 flushings of the tube, U = 4.47 m/s
+    mon = sim.monitors()
+    r = sim.fields()["rod/r"]
+    assert np.max(np.abs(r[:, 1:])) < 1e-13
+    assert abs(r[-1, 0] - 1.0) < 1e-13
+    E0 = 0.5 * BETA * (2.0 / np.sqrt(BETA)) ** 2  # the liquid's kinetic energy 1/2 M L U^2 (the rod is at rest)
+    assert abs(mon["energy"] / E0 - 1.0) < 1e-10
+    assert abs(mon["energy_balance"]) < 1e-8 * E0
+    P0 = BETA * 2.0 / np.sqrt(BETA)
+    assert np.max(np.abs(mon["momentum_balance"])) < 1e-8 * P0
+    assert abs(mon["mass_balance"]) < 1e-12
+    assert np.max(np.abs(mon["support_impulse"])) < 1e-8 * P0  # a straight steady flow pushes the clamp nowhere
+    assert mon["parcels"] == 10
+    assert mon["rod_constraint_residual"] < 1e-12
+    assert mon["constraint_residual"] < 1e-12
+
+
+def test_pinned_pinned_pipe_is_bounded_below_u_pi_and_diverges_above():
+    """Païdoussis' pinned-pinned pipe loses stability by divergence at u = pi (pipe_stability, truth): at 0.9 pi a
+    small kick stays bounded (a neutral oscillation), at 1.1 pi it grows exponentially, at the rate of the
+    linearisation.  10 elements, the nearly inextensible rod, a kick of 1e-6 m/s (the pins hold the chord, so at a
+    deflection of ~sqrt(EI/EA) the stretch's tension saturates the divergence: a linear test needs a small kick)."""
+    u_c, _, kind = ps.critical_flow_velocity(BETA, "pinned-pinned")
+    assert kind == "divergence" and abs(u_c - np.pi) < 1e-6
+    below = pipe(("pinned", "pinned"), 0.9 * u_c, 11, h=3e-3, constraint="none", kick=1e-6, profile="mid")
+    _, t, y = run(below, 1.2, probe=5)
+    assert np.max(np.abs(y)) < 3e-7  # the kick's own size: v / omega = 1e-6 / 4.2
+    assert np.max(np.abs(y[len(y) // 2:])) < 1.1 * np.max(np.abs(y[: len(y) // 2]))
+    above = pipe(("pinned", "pinned"), 1.1 * u_c, 11, h=3e-3, constraint="none", kick=1e-6, profile="mid")
+    sim, t, y = run(above, 1.2, probe=5)
+    assert y[-1] > 30 * np.max(np.abs(y[: len(y) // 4]))
+    rate = np.polyfit(t[len(t) // 2:], np.log(y[len(t) // 2:]), 1)[0]
+    assert rate == pytest.approx(modes_rate(("pinned", "pinned"), 1.1 * u_c, 11), rel=0.03)
+    mon = sim.monitors()
+    assert abs(mon["energy_balance"]) < 1e-6 * mon["energy"]
+    assert np.max(np.abs(mon["momentum_balance"])) < 1e-9
+
+
+@pytest.mark.parametrize("frac", [0.93, 1.07])
+def test_cantilever_decays_below_its_flutter_threshold_and_grows_above(frac):
+    """The cantilevered pipe (beta = 0.2) flutters above u_cr = 5.591 (pipe_stability, truth): a kicked run at
+    0.93 u_cr decays, at 1.07 u_cr it grows, with the rate of flowing_modes within 6 % (measured: 0.781 against 0.799 /s,
+    -0.936 against -0.928 /s); the constraints hold to round-off and the balances close."""
+    u_c, w_c, kind = ps.critical_flow_velocity(BETA, "clamped-free")
+    assert kind == "flutter" and abs(u_c - 5.5914) < 1e-3
+    sim, t, y = run(pipe(("clamped", "free"), frac * u_c, 21, h=1.8e-3, kick=1e-3), 1.45)
+    rate = peak_rate(t, y)
+    assert (rate > 0) == (frac > 1)
+    assert rate == pytest.approx(modes_rate(("clamped", "free"), frac * u_c, 21), rel=0.1)
+    mon = sim.monitors()
+    assert mon["rod_constraint_residual"] < 1e-12
+    assert mon["constraint_residual"] < 1e-10
+    assert abs(mon["energy_balance"]) < 1e-6 * mon["energy"]
+    assert np.max(np.abs(mon["momentum_balance"])) < 1e-10
+    assert abs(mon["mass_balance"]) < 1e-12
+
+
+def test_what_open_ends_on_a_rod_cannot_run_is_refused_in_one_line():
+    """A pressure inlet or a pressurised outlet on the coupled tube: one line each, before the first step."""
+    scene = pipe(constraint="none")
+    scene.fluid.ends["outflow_pressure"] = 2.0e5
+    with pytest.raises(SolverError, match="outflow_pressure") as e:
+        Simulation(build_model(scene))
+    assert "\n" not in str(e.value)
+    scene = pipe(constraint="none")
+    scene.fluid.ends["inflow"] = "pressure"
+    with pytest.raises(SolverError, match="fluid.ends") as e:
+        Simulation(build_model(scene))
+    assert "\n" not in str(e.value)
+
+
+def test_the_inextensible_rod_is_accepted_with_open_ends_only():
+    """rod_checks: an incompressible liquid in a rigid inextensible tube is refused when the tube is closed (its volume
+    fixes the length), accepted with open ends (the liquid passes through)."""
+    pipe()  # parses
+    text = """title = "a closed inextensible tube of liquid"
+[tube]
+length = 1.0
+nodes = 11
+radius = 0.01
+[rod]
+mass_per_length = 0.8
+rotary_inertia = 1e-6
+bending_stiffness = 1.0
+torsional_stiffness = 1.0
+constraint = "inextensible_unshearable"
+ends = { s0 = "clamped", sL = "free" }
+[fluid]
+model = "incompressible"
+density = 600.0
+parcels = 10
+[time]
+step = 1e-3
+end = 1e-3
+"""
+    with pytest.raises(SceneError, match="rod.constraint"):
+        parse_scene(text)
