@@ -602,7 +602,8 @@ class FastRodStep:
         self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
-        self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0}
+        #: the last step's Newton counts, and whether it needed the stepper's damped Newton
+        self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0, "fallback": False}
         self._has_data = model.state_data() is not None
 
     @property
@@ -707,7 +708,8 @@ class FastRodStep:
                      v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
                      self.col, self.ab, self.ipiv, st)
         iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
-        if not st[0]:
+        fell_back = not st[0]
+        if fell_back:
             z0 = 2.0 * v[self.vsel] - vprev[self.vsel] if linear else v[self.vsel]
             res = self._fallback(state, z0)
             iters, nres, njac = iters + res.iterations, nres + res.n_residual, njac + res.n_jacobian
@@ -729,6 +731,6 @@ class FastRodStep:
                               "step (more than 90); reduce time.step", step=n_new, time=n_new * self.h)
         if self.predictor == "linear":
             self._prev = (state.n, v.copy())
-        self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac}
+        self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac, "fallback": fell_back}
         return State(n_new, n_new * self.h, q1, p1, np.zeros(0), v1, state.q.copy(),
                      m.state_data() if self._has_data else None)
