@@ -66,6 +66,7 @@ UNITS = {
     "monitors/momentum_balance": "kg m/s",
     "monitors/mass_balance": "kg",
     "monitors/parcels": "1",
+    "monitors/support_impulse": "kg m/s",
     # fields
     "fields/fluid/s": "m",
     "fields/fluid/position": "m",
