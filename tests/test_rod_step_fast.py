@@ -260,3 +260,22 @@ def test_a_failed_chord_iteration_falls_back_to_the_steppers_damped_newton():
     assert fast.fallbacks == 3
     assert np.abs(st.q - ref.state.q).max() <= 1e-10 * np.abs(ref.state.q).max()
     assert np.abs(st.p - ref.state.p).max() <= 1e-10 * np.abs(ref.state.p).max()
+
+
+def test_the_floating_origin_can_be_switched_off_as_on_simulation():
+    """A rod thrown far: with the floating origin the positions stay O(L) and the origin holds the travel; without it
+    (Simulation.floating_origin = False) the origin stays zero; both are the stepper's levels."""
+    model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF, initial=dict(SPIN, velocity=[300.0, -200.0, 100.0])))
+    for floating in (True, False):
+        ref = Simulation(model)
+        ref.floating_origin = floating
+        fast = FastRodStep(model, ref.h)
+        fast.floating_origin = floating
+        assert fast.floating_origin == floating
+        st = ref.state.copy()
+        for _ in range(20):
+            ref.step()
+            st = fast.step(st)
+        origin = st.q[-3:]
+        assert (np.linalg.norm(origin) > 50.0) == floating
+        assert np.abs(st.q - ref.state.q).max() <= 1e-12 * np.abs(ref.state.q).max()

@@ -607,6 +607,15 @@ class FastRodStep:
         self._has_data = model.state_data() is not None
 
     @property
+    def floating_origin(self):
+        """Positions relative to a floating origin moved with node 0 (Simulation.floating_origin; default: a free rod)."""
+        return bool(self.ci[2])
+
+    @floating_origin.setter
+    def floating_origin(self, on):
+        self.ci[2] = 1 if on else 0
+
+    @property
     def z(self):
         """The last step's solution (step unknowns in Step's order)."""
         return self.wz[0]
