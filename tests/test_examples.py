@@ -22,7 +22,7 @@ STEPS = 20
 #: the tumbling rod turns by 0.25 rad per step.  A new example gets DEFAULT_TOLERANCE until measured.
 ENERGY_TOLERANCE = {
     "cantilever_rod": 2e-6,          # measured 1.9e-7
-    "garden_hose": 2e-6,             # energy_balance (E - E0 - fluxes): 2.1e-7
+    "garden_hose": 7e-7,             # energy_balance (E - E0 - fluxes): 7.0e-8
     "liquid_pulse_tube_law": 1e-7,   # 1.2e-8
     "open_pipe_gas": 3e-9,           # energy_balance (E - E0 - fluxes): 3.0e-10
     "rigid_horn_gas": 3e-10,         # 2.6e-11
