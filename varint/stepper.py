@@ -1139,7 +1139,6 @@ class Simulation:
         kinetic energy of its velocities, (X_k^{n+1} - X_k^n)/h for every label (the piston's included) and the nodes'
         (r^{n+1} - r^n)/h and xi/h, plus the potential at its midpoint data (strain midpoint, rbar, sbar); record 0:
         the initial data's (velocities from the momenta in the kinetic metric, the potential at the level)."""
-        from .coupled_geometry import centreline_and_weights  # noqa: F401  (m.centreline)
         from .rod import CHI
 
         m = self.model
