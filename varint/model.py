@@ -261,6 +261,9 @@ class Model:
 
     def invariants(self):
         """Invariants this model keeps, derived from its terms', forces' and ends' declarations."""
+        if self.coupled and self.tube.open:
+            # open ends (docs/theory.md §13.4): balanced against the fluxes through the ends and the supports' impulse
+            return self.tube.invariants()
         if self.coupled:
             base = ["energy", "linear_momentum", "angular_momentum", "mass"]
             if self.tube.eos is not None and self.tube.eos.has_entropy:
