@@ -65,6 +65,7 @@ def _blocks(n):
 
 def run_old(model, n):
     sim = Simulation(model)
+    sim._fast = None  # the general path (Step + varint.newton), which Simulation used for the rod before the hook
     sim.step()  # compiled kernels, first Jacobian
     its = jacs = 0
     best = math.inf
