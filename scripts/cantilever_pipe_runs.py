@@ -1,0 +1,49 @@
+"""Kicked runs of the cantilevered pipe conveying liquid (open ends on the coupled tube, docs/theory.md §13) at 0.93
+and 1.07 of its flutter threshold u_cr(beta) from varint.pipe_stability (Païdoussis eq. 3.70, independent truth),
+for the mass ratios beta of the issue: the run's growth rate (log-linear fit of the tip's peaks) against
+varint.flowing_modes' (a cross-check).  The pipe of tests/test_coupled_open_ends.py (EI = 1, L = 1, M + m = 1,
+inextensible rod, 20 elements) at that beta.  Numbers in docs/validation.md.
+
+    python scripts/cantilever_pipe_runs.py [--betas 0.1,0.2,0.5,0.8] [--h 1.8e-3] [--periods 8]
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+import test_coupled_open_ends as T  # noqa: E402
+
+from varint import pipe_stability as ps  # noqa: E402
+from varint.errors import VarintError  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--betas", default="0.1,0.2,0.5,0.8")
+    ap.add_argument("--h", type=float, default=1.8e-3, help="largest step (smaller where the inflow would move more "
+                    "than 0.4 parcel lengths per step)")
+    ap.add_argument("--periods", type=float, default=8.0, help="run length in flutter periods 2 pi / omega_cr")
+    a = ap.parse_args()
+    print("| beta | u_cr (pipe_stability) | u/u_cr | h [s] | run's rate [1/s] | flowing_modes' rate [1/s] | outcome |")
+    print("|---|---|---|---|---|---|---|")
+    for beta in [float(b) for b in a.betas.split(",")]:
+        T.BETA = beta
+        u_c, w_c, kind = ps.critical_flow_velocity(beta, "clamped-free")
+        for frac in (0.93, 1.07):
+            U = frac * u_c / np.sqrt(beta)
+            h = float(min(a.h, 0.4 * (1.0 / 20) / U))
+            try:
+                sim, t, y = T.run(T.pipe(("clamped", "free"), frac * u_c, 21, h=h, kick=1e-3), a.periods * 2 * np.pi / w_c)
+                rate = T.peak_rate(t, y)
+                ok = "decays" if rate < 0 else "grows"
+            except (VarintError, AssertionError) as exc:
+                rate, ok = float("nan"), f"failed: {str(exc).splitlines()[0][:60]}"
+            ref = T.modes_rate(("clamped", "free"), frac * u_c, 21)
+            print(f"| {beta} | {u_c:.4f} ({kind}) | {frac} | {h:.3g} | {rate:+.3f} | {ref:+.3f} | {ok} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
