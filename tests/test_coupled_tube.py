@@ -100,7 +100,9 @@ def _lam(model, rng, amp):
 def test_residual_is_the_gradient_of_the_discrete_action(case):
     """p_1 + D1 L_d(q_1, q_2) (p_1 = D2 L_d(q_0, q_1)) and D_lam L_d against central differences of
     S = L_d(q_0, q_1, lam_1) + L_d(q_1, q_2, lam_2) in the variations of q_1 (Lambda cay(eps e_d), r + eps e,
-    s, R) and of lam_2; each block to 1e-6 of its own size."""
+    s, R) and of lam_2; each block to 1e-6 of its own size.  A liquid held at the levels (SHAKE, theory §10.12:
+    L_d(q_n, q_{n+1}, mu_n) = L_d' + h mu_n . (V(q_n) - V0)) has as its multiplier rows the next step's
+    D_mu L_d(q_2, ., mu) = h (V(q_2) - V0), checked against differences of L_d(q_2, q_2, lam) in lam."""
     model = coupled_scene(**CASES[case])
     sim = Simulation(model)
     step = sim.scheme
@@ -115,8 +117,12 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
     res = step.residual(q1, p1, z12)
     N, t, rod = model.N, model.tube, model.rod
 
-    def action(qm, lm=lam2):
+    def action(qm, lm=lam2, next_step=False):
+        if next_step:  # the level constraint's row: D_mu of the step that starts at q_2
+            return step.discrete_lagrangian(qm, qm, lm)
         return step.discrete_lagrangian(q0, qm, lam1) + step.discrete_lagrangian(qm, q2, lm)
+
+    level = next(x for x in step.terms if x.name == "fluid").level_constraint
 
     def fd(perturb, eps):
         return (action(*perturb(eps)) - action(*perturb(-eps))) / (2 * eps)
@@ -156,6 +162,11 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
                     q = q1.copy()
                     q[model.tube_q.start + i] += eps
                     return (q,)
+            elif level:
+                def perturb(eps, i=i):
+                    lm = lam2.copy()
+                    lm[i - t.nq] += eps
+                    return (q2, lm, True)
             else:
                 def perturb(eps, i=i):
                     lm = lam2.copy()

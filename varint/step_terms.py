@@ -263,6 +263,12 @@ class CoupledFluid:
     rod's entries on the support mask, the tube's through its selection B (end labels and rigid radii are
     data), with weight 2 on a quasistatic radius, which is the half-level value of both levels
     (d/dR_{n+1/2} = d/dR^n + d/dR^{n+1}: twice either, the potential reads Rbar only).
+
+    An incompressible liquid in a rigid or dynamic wall holds its volumes at the levels (docs/theory.md §10.12):
+    the step's L_d is the midpoint one without the multiplier term plus h mu_n . (V(q_n) - V0), and the step
+    solves (q_{n+1}, mu_n) from p_n + D1 L_d + h G(q_n)^T mu_n = 0 and h (V(q_{n+1}) - V0) = 0 (SHAKE), so the
+    midpoint's alternating mode about the constraint surface does not exist.  In a quasistatic wall (radii at
+    half levels) the liquid keeps the midpoint constraint.
     """
 
     name = "fluid"
@@ -312,6 +318,14 @@ class CoupledFluid:
         self.w_of = np.zeros(n)
         self.w_of[P.row] = P.data
         self.BT = t.B.T.tocsr()
+        #: SHAKE: the liquid's volumes held at the levels (theory §10.12); a quasistatic wall keeps the midpoint's
+        self.level_constraint = bool(t.incompressible and not (t.has_wall and not t.wall_dynamic))
+        if self.level_constraint:
+            import dataclasses
+
+            self.fp0 = dataclasses.replace(self.fp, p_ext=0.0, g=np.zeros(3))
+            n_k = n_nodes if self.ext is None else self.ext.n_ext
+            self.off0, self.n0 = newton_offsets(n_k, t.M + 1, t.nR if self.ext is None else n_k, t.M)
 
     def levels(self, pt):
         """(s0, R0, s1, R1, mu, Lam1) of the step: the tube's full configurations at both levels."""
@@ -347,6 +361,8 @@ class CoupledFluid:
         from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
 
         s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        if self.level_constraint:  # the multipliers act at the levels (_level_volumes), not at the midpoint
+            mu = np.zeros_like(mu)
         if not (self._valid(s0) and self._valid(s1)):
             return None, None
         k, fp = self.n_nodes, self.fp
@@ -361,9 +377,28 @@ class CoupledFluid:
                                   fp.period, newton=newton)
         return pot, kin
 
+    def _level_volumes(self, pt, hessian):
+        """fluid_potential_static of U_mu = -mu_n . (V - V0) (no p_ext, no gravity) at level n and at level n+1, on
+        the kernels' lattice (extended for open ends): U, its gradient and Hessian in the chart r + dr,
+        Lambda cay(sigma), s, R, mu; d/dmu is -(V - V0)."""
+        from .coupled_terms import fluid_potential_static
+
+        s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        if self.ext is not None:
+            s0e, r0e, L0e, R0e, s1e, r1e, L1e, R1e = self._extended(pt, s0, R0, s1, R1, Lam1)
+            return (fluid_potential_static(self.fp0, s0e, r0e, L0e, R0e, mu=mu, hessian=hessian),
+                    fluid_potential_static(self.fp0, s1e, r1e, L1e, R1e, mu=mu, hessian=hessian))
+        k = self.n_nodes
+        return (fluid_potential_static(self.fp0, s0, pt.r_n[:k], pt.Lam_n[:k], R0, mu=mu, hessian=hessian),
+                fluid_potential_static(self.fp0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu, hessian=hessian))
+
     def value(self, pt):
         pot, kin = self._parts(pt)
-        return np.nan if pot is None else pot.L + kin.L
+        if pot is None:
+            return np.nan
+        if self.level_constraint:  # + h mu_n . (V(q_n) - V0) = -h U_mu(q_n)
+            return pot.L + kin.L - pt.h * self._level_volumes(pt, False)[0][0]
+        return pot.L + kin.L
 
     def kinetic_value(self, pt):
         """The fluid kinetic part of the step's L_d (h times the step's fluid kinetic energy)."""
@@ -399,6 +434,17 @@ class CoupledFluid:
             gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
         if level == 0 and t.incompressible:
             gc[i["mu"]:] = pot.Dmu
+        if level == 0 and self.level_constraint:
+            # h G(q_n)^T mu_n = -h dU_mu(q_n), and the constraint row h (V(q_{n+1}) - V0) = -h dU_mu(q_{n+1})/dmu
+            (_, g0, _), (_, g1, _) = self._level_volumes(pt, False)
+            o = self.off0
+            rod_f, R_f = -pt.h * g0[:o["s"]].reshape(-1, 6), -pt.h * g0[o["R"]:o["mu"]]
+            if self.ext is not None:
+                rod_f, R_f = self.ext.fold_gradient(rod_f), self.ext.fold_radii(R_f)
+            d.rod[:self.n_nodes] += rod_f
+            gc[:i["R"]] -= pt.h * g0[o["s"]:o["R"]]
+            gc[i["R"]:i["R"] + t.nR] += self.R_weight * R_f
+            gc[i["mu"]:] = -pt.h * g1[o["mu"]:]
         gz = self.BT @ gc
         d.tube_q += gz[:t.nq]
         if level == 0:
@@ -411,6 +457,8 @@ class CoupledFluid:
         r = np.concatenate([pot.newton[0], kin.newton[0]])
         c = np.concatenate([pot.newton[1], kin.newton[1]])
         v = np.concatenate([pot.newton[2], kin.newton[2]])
+        if self.level_constraint:
+            r, c, v = self._level_newton(pt, r, c, v)
         if self.ext is not None:  # the extended lattice's block folded onto the real nodes: G^T J_ext G
             t = self.t
             G = self.ext.fold_matrix(pt.Lam_n, t.M + 1, t.M)
@@ -421,6 +469,35 @@ class CoupledFluid:
         keep = (zr >= 0) & (zc >= 0)
         nz = self.model.nz
         return sp.csc_matrix((v[keep] * self.w_of[r[keep]] * self.w_of[c[keep]], (zr[keep], zc[keep])), shape=(nz, nz))
+
+    def _level_newton(self, pt, r, c, v):
+        """The kernel block with its multiplier rows and columns replaced by the level constraints' (kernel ordering):
+        columns d(D1)/dmu_n = -h d^2U_mu(q_n)/dq dmu (translational rows in the level-n frames), rows
+        d(h (V(q_{n+1}) - V0))/d(b, xi, s, R) = -h d^2U_mu(q_{n+1})/dmu dq chained through dr = Lambda^n db,
+        sigma = dcay_{-xi} dxi (the chart of docs/theory.md §10.9)."""
+        from .lie import dcay
+
+        o, n = self.off0, self.n0
+        keep = (r < o["mu"]) & (c < o["mu"])
+        (_, _, H0), (_, _, H1) = self._level_volumes(pt, True)
+        if self.ext is not None:
+            Lam_n, xi = self.ext.frames(pt.Lam_n), pt.xi[self.ext.node_map]
+        else:
+            Lam_n, xi = pt.Lam_n[:self.n_nodes], pt.xi[:self.n_nodes]
+        k, nq = len(Lam_n), o["mu"]
+        blk_rot = np.zeros((k, 6, 6))
+        blk_rot[:, :3, :3] = np.swapaxes(Lam_n, 1, 2)
+        blk_rot[:, 3:, 3:] = np.eye(3)
+        blk_chart = np.zeros((k, 6, 6))
+        blk_chart[:, :3, :3] = Lam_n
+        blk_chart[:, 3:, 3:] = dcay(-xi)
+        eye = sp.identity(nq - 6 * k, format="csr")
+        Rot = sp.block_diag([sp.block_diag(list(blk_rot), format="csr"), eye], format="csr")
+        Chart = sp.block_diag([sp.block_diag(list(blk_chart), format="csr"), eye], format="csr")
+        C = (Rot @ (-pt.h * H0[:nq, nq:])).tocoo()
+        Rw = ((-pt.h * H1[nq:, :nq]) @ Chart).tocoo()
+        return (np.concatenate([r[keep], C.row, nq + Rw.row]), np.concatenate([c[keep], nq + C.col, Rw.col]),
+                np.concatenate([v[keep], C.data, Rw.data]))
 
     def constant_diagonal_jacobian(self):
         return False

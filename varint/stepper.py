@@ -738,10 +738,10 @@ class Simulation:
         out["energy_wall_kinetic"] = Kw
         out["energy_potential"] = U
         out["energy"] = Kf + Kr + Kw + U
-        # mass from the state: density field times the stretched parcel volumes (incompressible: at the last
-        # step's midpoint, where the constraint holds)
+        # mass from the state: density field times the stretched parcel volumes (incompressible: where the
+        # constraint holds, at the level for a liquid held at the levels, else at the last step's midpoint)
         V = self._coupled_volumes(cfg, Lam, r)
-        if t.incompressible and st.q_prev is not None:
+        if t.incompressible and st.q_prev is not None and not fluid.level_constraint:
             s0, R0, s1, R1, _, Lam1 = fluid.levels(sch.point(st.q_prev, sch.unknowns(st.q_prev, st.q, st.lam)))
             Lp, rp, op = unpack_level(st.q_prev[m.rod_q], N)
             G0, _, _ = element_strains(Lp, rp + op - origin, t.ds)
@@ -1241,6 +1241,11 @@ class Simulation:
             # of each step's (the first step: half of its own)
             b[5] += t.U_in * (-float(kin.D1.s[0]) - b[13]) + 0.5 * (W_pot + b[14])
             b[13], b[14] = float(kin.D2.s[0]), W_pot
+            if fluid.level_constraint:
+                # a liquid held at the levels (theory §10.12): the pressure's impulse on the piston acts at level n,
+                # h mu_n dV_0/ds_0 = -h dU_mu(q_n)/ds_0, whole between the two step energies
+                g0 = fluid._level_volumes(pt, False)[0][1]
+                b[5] += h * t.U_in * float(g0[fluid.off0["s"]])
         d = self.scheme._derivatives(pt, 0)
         for force in m.forces:
             force.add(pt, d, 0)
@@ -1252,6 +1257,10 @@ class Simulation:
         b[6:9] += h * (M_tot * rod.g + rod.force) + R
         if t.n_fixed:
             t.piston += h * t.U_in
+
+    def _level_constraint(self):
+        """True when the coupled liquid holds its volumes at the levels (varint.step_terms.CoupledFluid)."""
+        return any(getattr(x, "level_constraint", False) for x in self.scheme.terms)
 
     def _oc_update(self, st):
         """Inject and remove parcels of the open coupled tube at a level (docs/theory.md §13.2-13.3, coupled).
@@ -1345,6 +1354,12 @@ class Simulation:
             # the released piston (label `injected` now): its last D2 L_d, kinetic part at its new mass
             j = injected
             p_new[j] = b[13] * mb_new[j] / mb0_piston
+            if self._level_constraint() and st.q_prev is not None:
+                # a liquid held at the levels (theory §10.12): the pressure's impulse on the freed label comes whole in the
+                # next step, so it keeps its D2 L_d's weight too, (h/2) mbar g . X'(sbar) of the step that ended, with
+                # the piston's mass in that step (the joining mass was not in the tube: its momentum is kinetic)
+                dXb = m.centreline(np.array([0.5 * (s_all[j] + prev_all[j])]), 0.5 * (r + r_prev + o_prev - origin))[4][0]
+                p_new[j] += 0.5 * h * mb0_piston * float(rod.g @ dXb)
             p_new[:j] = lab_kin[:j]  # any further new labels: their kinetic momenta (the piston's, label 0, is data)
             b[13] = float(lab_kin[0])
         p_rod = st.p[ns:].copy()
