@@ -26,7 +26,7 @@ from numba import njit
 
 from .rod import _k_body_rows, _k_cay, _k_chart_column, _k_config_column, _k_mm
 
-__all__ = ["constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
+__all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
 
 @njit(cache=True)
@@ -109,13 +109,17 @@ def _k_constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, lev_lo, lev_hi
 
 
 @njit(cache=True)
-def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, blocks, lam_blocks, row_blocks):
+def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_levels, blocks, lam_blocks, row_blocks):
     """Newton blocks of one element e:
 
     ``blocks[e, :, k]`` = d(rotated D1 of the element)/d u_k, u = (b_a, xi_a, b_b, xi_b) (complex step of the
     analytic gradient; translational rows in the level-n body frame of their node, as the rod's);
     ``lam_blocks[e, :, i]`` = d(rotated D1)/d lam_e,i (analytic: D1 is linear in lam);
     ``row_blocks[e, i, k]`` = d(D_lam_e,i)/d u_k (complex step).  Columns off the ``mask`` are left zero.
+
+    ``at_levels`` (SHAKE, docs/theory.md §9a): the term is -h ds lam_n . (Gamma(q_n) - chi); its force acts at the
+    known level n (``blocks`` = 0, ``lam_blocks`` from level n) and the row is -h ds (Gamma(q_{n+1}) - chi), the
+    D_lam of the next step's term (``row_blocks`` from level n+1 alone).
     """
     N = Lam_n.shape[0] - 1
     c = np.complex128
@@ -157,10 +161,15 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, bloc
             _k_cay(xb[0], xb[1], xb[2], Cb)
             _k_mm(La0, Ca, La1)
             _k_mm(Lb0, Cb, Lb1)
-            _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
-            for i in range(12):
-                col[i] = e1[i].imag * inv
-            _k_body_rows(Lam_n, e, col, blocks[e, :, k])
+            if at_levels:  # the row reads level n+1 alone; the level-n force does not depend on u
+                _k_constraint_element(h, ds, La1, Lb1, qa, qb, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 0)
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+            else:
+                _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
+                for i in range(12):
+                    col[i] = e1[i].imag * inv
+                _k_body_rows(Lam_n, e, col, blocks[e, :, k])
             for i in range(3):
                 row_blocks[e, i, k] = dl[i].imag * inv
         # lam columns: D1 is linear in lam, so its derivative is D1 at lam = e_i (no perturbation: eps = 0)
@@ -172,9 +181,14 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, bloc
         for j in range(3):
             for i in range(3):
                 lc[i] = 1.0 if i == j else 0.0
-            _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
-            for i in range(12):
-                col[i] = e1[i].real
+            if at_levels:  # the force at level n: both "levels" of the kernel at q_n, D1 + D2 the whole gradient
+                _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La0, Lb0, ra0, rb0, lc, ncomp, e1, e2, dl, 0, 2)
+                for i in range(12):
+                    col[i] = e1[i].real + e2[i].real
+            else:
+                _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
+                for i in range(12):
+                    col[i] = e1[i].real
             _k_body_rows(Lam_n, e, col, lam_blocks[e, :, j])
 
 
@@ -193,15 +207,29 @@ def constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, levels=(0, 2)):
     return val, D1, D2, Dl
 
 
-def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30):
+def level_constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp):
+    """The SHAKE form of the constraint (docs/theory.md §9a): the step's term -h ds lam_n . (Gamma(q_n) - chi).
+
+    Returns (value, F (N+1, 6), row (N, 3)): F = its gradient in the level-n variations (dr, sigma) — the
+    constraint force, acting at the known level, linear in lam_n — and row = -h ds (Gamma(q_{n+1}) - chi), the
+    derivative in lam_{n+1} of the next step's term, which the step solves with q_{n+1} (Gamma = chi at the new
+    level).  Both from the midpoint kernel with its two levels at one configuration (its D1 + D2 is then the
+    whole gradient, its D_lam the level's strain)."""
+    val, D1, D2, _ = constraint_step(h, ds, Lam_n, r_n, Lam_n, r_n, lam, ncomp, (0, 2))
+    _, _, _, row = constraint_step(h, ds, Lam_1, r_1, Lam_1, r_1, lam, ncomp, (0, 0))
+    return val, D1 + D2, row
+
+
+def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30, at_levels=False):
     """The element Newton blocks of :func:`_k_constraint_blocks`: (blocks (N,12,12), lam_blocks (N,12,3),
-    row_blocks (N,3,12))."""
+    row_blocks (N,3,12)); ``at_levels`` for the SHAKE form (:func:`level_constraint_step`)."""
     N = Lam_n.shape[0] - 1
     blocks, lam_blocks, row_blocks = np.empty((N, 12, 12)), np.empty((N, 12, 3)), np.empty((N, 3, 12))
     f8 = np.float64
     _k_constraint_blocks(float(h), float(ds), np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
                          np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8),
-                         np.ascontiguousarray(lam, dtype=f8), int(ncomp), mask, eps, blocks, lam_blocks, row_blocks)
+                         np.ascontiguousarray(lam, dtype=f8), int(ncomp), mask, eps, bool(at_levels), blocks, lam_blocks,
+                         row_blocks)
     return blocks, lam_blocks, row_blocks
 
 

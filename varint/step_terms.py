@@ -38,7 +38,7 @@ class StepPoint:
     xi: np.ndarray | None = None  #: cay^-1(Lambda_n^T Lambda_{n+1}) per node
     r_1: np.ndarray | None = None  #: rod positions at level n+1
     Lam_1: np.ndarray | None = None  #: rod frames at level n+1, re-orthonormalised (set when f^+ is asked)
-    rod_lam: np.ndarray | None = None  #: the inextensible rod's multipliers (N, 3), half level
+    rod_lam: np.ndarray | None = None  #: the inextensible rod's multipliers (N, 3), at level n (SHAKE)
 
 
 class Derivatives:
@@ -187,10 +187,14 @@ class RodElements:
 
 
 class RodConstraint:
-    """-h sum_e ds lambda_e . (Gammabar_e - chi): the inextensible, unshearable rod (varint.rod_constraint).
+    """The inextensible, unshearable rod (varint.rod_constraint), its constraint held at the levels (SHAKE,
+    docs/theory.md §9a): the step's term is -h sum_e ds lambda_e^n . (Gamma_e(q_n) - chi), whose force acts at the
+    known level n, and the step's constraint rows are -h ds (Gamma_e(q_{n+1}) - chi), the derivative in lambda^{n+1}
+    of the next step's term: Gamma = chi at every level, and no alternating mode about the constraint surface
+    (the midpoint constraint's, Gammabar = chi, which the flowing liquid pumped: docs/theory.md §12).
 
-    Its Newton block: the element blocks in the rod's chart (b, xi) as RodElements', the multipliers'
-    columns (D1 is linear in lambda) and the constraint rows D_lambda = -h ds (Gammabar - chi).
+    Its Newton block: the multipliers' columns (the level-n force is linear in lambda and independent of q_{n+1})
+    and the constraint rows, in the rod's chart (b, xi) as RodElements'.
     """
 
     name = "inextensibility"
@@ -199,7 +203,6 @@ class RodConstraint:
     def __init__(self, model):
         self.model, self.rod = model, model.rod
         rod = self.rod
-        n1 = rod.N + 1
         idx = rod.node_index()
         idx[idx >= 0] += model.rod_z.start
         e = np.arange(rod.N)[:, None]
@@ -214,33 +217,31 @@ class RodConstraint:
 
         return pt.Lam_n @ cay(pt.xi)
 
-    def value(self, pt):
-        from .rod_constraint import constraint_step
+    def _step(self, pt):
+        from .rod_constraint import level_constraint_step
 
-        return constraint_step(pt.h, self.rod.ds, pt.Lam_n, pt.r_n, self._lam1(pt), pt.r_1, pt.rod_lam, self.rod.ncomp,
-                               (0, 0))[0]
+        return level_constraint_step(pt.h, self.rod.ds, pt.Lam_n, pt.r_n, self._lam1(pt), pt.r_1, pt.rod_lam,
+                                     self.rod.ncomp)
+
+    def value(self, pt):
+        return self._step(pt)[0]
 
     def add(self, pt, d, level):
-        from .rod_constraint import constraint_step
-
-        _, D1, D2, Dl = constraint_step(pt.h, self.rod.ds, pt.Lam_n, pt.r_n, self._lam1(pt), pt.r_1, pt.rod_lam,
-                                        self.rod.ncomp, (level, level + 1))
-        d.rod += D1 if level == 0 else D2
-        if level == 0:
-            d.rod_lam += Dl
+        if level == 0:  # the force at level n and the rows at level n+1; nothing in D2
+            _, F, row = self._step(pt)
+            d.rod += F
+            d.rod_lam += row
 
     def jacobian(self, pt):
         from .rod_constraint import constraint_blocks
 
         rod = self.rod
-        blocks, lam_blocks, row_blocks = constraint_blocks(pt.h, rod.ds, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, pt.rod_lam,
-                                                           rod.ncomp, rod.column_mask)
+        _, lam_blocks, row_blocks = constraint_blocks(pt.h, rod.ds, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, pt.rod_lam,
+                                                      rod.ncomp, rod.column_mask, at_levels=True)
         E, L = self._elem_idx, self._lam_idx
-        rows = [np.broadcast_to(E[:, :, None], blocks.shape), np.broadcast_to(E[:, :, None], lam_blocks.shape),
-                np.broadcast_to(L[:, :, None], row_blocks.shape)]
-        cols = [np.broadcast_to(E[:, None, :], blocks.shape), np.broadcast_to(L[:, None, :], lam_blocks.shape),
-                np.broadcast_to(E[:, None, :], row_blocks.shape)]
-        vals = [blocks, lam_blocks, row_blocks]
+        rows = [np.broadcast_to(E[:, :, None], lam_blocks.shape), np.broadcast_to(L[:, :, None], row_blocks.shape)]
+        cols = [np.broadcast_to(L[:, None, :], lam_blocks.shape), np.broadcast_to(E[:, None, :], row_blocks.shape)]
+        vals = [lam_blocks, row_blocks]
         r = np.concatenate([x.ravel() for x in rows])
         c = np.concatenate([x.ravel() for x in cols])
         v = np.concatenate([x.ravel() for x in vals])

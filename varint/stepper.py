@@ -608,8 +608,8 @@ class Simulation(OpenEndsStepping):
         p = pp[: 3 * (N + 1)].reshape(N + 1, 3) * rod.mask[:, :3]
         Pi = pp[3 * (N + 1):].reshape(N + 1, 3) * rod.mask[:, 3:]
         if rod.constrained:
-            # the level momenta carry half the step's constraint impulse, (h/2) G^T lambda, which is no motion:
-            # the kinetic energy is that of their part tangent to the constraint (p - G^T mu with
+            # the level momenta D2 L_d' lack the level's constraint impulse h ds G^T lambda^n (no motion, but
+            # not tangent either): the kinetic energy is that of their part tangent to the constraint (p - G^T mu with
             # G M^-1 (p - G^T mu) = 0, the projection of RATTLE)
             p, Pi = self._tangent_momenta(Lam, r, p, Pi)
         pot = rod.level_energy(Lam, r, p, Pi, origin)
