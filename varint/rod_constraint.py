@@ -1,15 +1,18 @@
 """The inextensible, unshearable rod: the holonomic constraint Gamma = chi with multipliers (docs/theory.md §9a).
 
 The paper's ``inext_unshear_norot`` limit of the rod: no stretch and no shear, Gamma = Lambda^T r' = E_1.
-On the lattice the constraint is imposed on each element's strain at the step's strain midpoint, as the
-incompressible fluid's volumes are (docs/theory.md §5): the stretch-shear energy is replaced by
+On the lattice the stretch-shear energy is replaced by a constraint on each element's strain at the levels
+(SHAKE, as the incompressible liquid's volumes are, docs/theory.md §10.12):
 
-    L_c = -h sum_e ds lambda_e . (Gammabar_e - chi),     Gammabar_e = (Gamma_e^n + Gamma_e^{n+1}) / 2,
+    S = sum_n [ L_d'(q_n, q_{n+1}) - h sum_e ds lambda_e^n . (Gamma_e(q_n) - chi) ],
 
-with the multipliers lambda_e (the internal force n of the element, body frame) half-level unknowns.
-D_lambda L_d = 0 is Gammabar_e = chi; with Gamma_e^0 = chi it gives Gamma_e^n = chi at every level (to the
-solver tolerance: an error e_{n+1} = -e_n + delta does not grow).  The stiff axial and shear modes are
-then absent, not merely unresolved (docs/theory.md §12).
+with the multipliers lambda_e^n (the internal force n of the element, body frame) level unknowns.  A step solves
+(q_{n+1}, lambda^n): the force -h ds G(q_n)^T lambda^n acts at the known level and the rows are
+-h ds (Gamma_e(q_{n+1}) - chi) (:func:`level_constraint_step`), so Gamma = chi at every level to the solver
+tolerance.  The element kernel is written for the strain midpoint Gammabar = (Gamma^n + Gamma^{n+1}) / 2 (the
+earlier form, which steps the same trajectory, docs/theory.md §9a); the level form calls it with both of its
+levels at one configuration.  The stiff axial and shear modes are then absent, not merely unresolved
+(docs/theory.md §12).
 
 A planar rod (x-y plane) has Gamma_3 = 0 identically; only Gamma_1, Gamma_2 are constrained there.
 
