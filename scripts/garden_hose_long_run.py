@@ -8,7 +8,7 @@ became NaN, the largest constraint residuals (the inextensible rod's, the liquid
 (energy, momentum, mass) relative to the energy and momentum scales.  Numbers: docs/validation.md ("Open ends on
 the coupled tube").
 
-    python scripts/garden_hose_long_run.py [SCENE] [--periods 100] [--out hose.h5] [--step H] [--nodes N]
+    python scripts/garden_hose_long_run.py [SCENE] [--periods 100] [--out hose.h5] [--step H] [--nodes N] [--parcels P]
 """
 
 import argparse
@@ -50,6 +50,8 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=None, help="time.step (default the scene's)")
     ap.add_argument("--nodes", type=int, default=None, help="tube.nodes (fluid.parcels follows: one per element)")
     ap.add_argument("--every", type=int, default=None, help="output.every (default the scene's)")
+    ap.add_argument("--parcels", type=int, default=None, help="fluid.parcels (default the scene's, or one per element "
+                    "with --nodes)")
     a = ap.parse_args(argv)
     scene = varint.load_scene(a.scene)
     if a.step is not None:
@@ -59,6 +61,8 @@ def main(argv=None):
         scene.fluid["parcels"] = a.nodes - 1
     if a.every is not None:
         scene.output["every"] = a.every
+    if a.parcels is not None:
+        scene.fluid["parcels"] = a.parcels
     th = threshold_of(scene)
     print(f"hose: beta = {th['beta']:.4f}, gamma = {th['gamma']:.2f}, u = {th['u']:.3f}; pipe_stability: {th['kind']} at "
           f"u_cr = {th['u_cr']:.4f} (U_cr = {th['U_cr']:.3f} m/s, {th['f_cr']:.3f} Hz); U/U_cr = {th['u'] / th['u_cr']:.3f}")

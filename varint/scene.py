@@ -96,7 +96,8 @@ SCHEMA = MappingProxyType({
         Key("pressure", "float", None, "Pa", "initial pressure (required for ideal-gas and barotropic; incompressible: initial guess of the multiplier, default the external pressure)"),
         Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube"),
         # the upper bound keeps the (M+1)-sized Jacobian and its factorisation within a few GB
-        Key("parcels", "int", REQUIRED, "", "number of fluid parcels M (labels k = 0..M)", low=2, high=2_000_000),
+        Key("parcels", "int", REQUIRED, "", "number of fluid parcels M (labels k = 0..M); flowing liquid on a [rod]: at "
+            "least 2 per element (docs/theory.md §12, labels passing the nodes)", low=2, high=2_000_000),
         Key("gas_constant", "float", 287.05, "J/(kg K)", "ideal gas: specific gas constant (sets the entropy unit c_v = R/(gamma-1))", low=0.0, low_open=True),
         Key("bulk_modulus", "float", None, "Pa", "barotropic: bulk modulus K = rho dp/drho at the reference density", low=0.0, low_open=True),
     ),
