@@ -389,8 +389,9 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
 
     * ``rho``, ``p`` the parcel's (``e = p / ((gamma - 1) rho)``); ``u`` = ds/dt, the paper's u (the fluid's
       velocity in the body frame is gam + Gamma u), the mean over the parcel's two labels of their centred rates;
-    * ``Gamma`` the lattice strain Lambda_hat_e^T (r_{e+1} - r_e)/ds of the element holding c, ``gam``
-      = Lambda_hat_e^T r_dot(c), r_dot the nodes' centred rates interpolated linearly at c (Lambda_hat_e the
+    * ``Gamma``, ``gam`` the tube's, at the shock (the same on both sides: the tube is smooth across the shock):
+      the lattice strain Lambda_hat_e^T (r_{e+1} - r_e)/ds of the element holding the shock and
+      Lambda_hat_e^T r_dot there, r_dot the nodes' centred rates interpolated linearly (Lambda_hat_e the
       element's mean frame, the one that defines Gamma_e); ``Q = pi R0^2 |Gamma|``;
     * the speed c = ds_shock/dt of the point where the pressure crosses the mean of the two states.
 
@@ -475,14 +476,17 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
         G = element_strains(Lam, r, ds)[0]
         rdot = (F["rod/r"][k + 1] - F["rod/r"][k - 1]) / dt
         N = len(r) - 1
-        out = []
-        for j in (a, b):
-            e = min(max(int(math.floor(ck[j] / ds)), 0), N - 1)
-            tau = ck[j] / ds - e
-            Lhat = 0.5 * (Lam[e] + Lam[e + 1])
-            gam = Lhat.T @ ((1.0 - tau) * rdot[e] + tau * rdot[e + 1])
-            out.append(np.concatenate([[F["fluid/density"][k][j], 0.5 * (u_lab[j] + u_lab[j + 1]), pk[j]], G[e], gam]))
-        return out
+        # the tube's strain and velocity at the shock itself (the tube is smooth across it: the conditions take
+        # one Gamma, gam for both sides; read at the fluid states, offset parcels away, they would carry the tube's
+        # own gradients, e.g. a stretching tube's d gam/ds, into the residuals)
+        inside = min(pk[ik], pk[ik + 1]) <= level <= max(pk[ik], pk[ik + 1])
+        xk = _crossing(ck, pk, ik, level if inside else 0.5 * (pk[ik] + pk[ik + 1]))
+        e = min(max(int(math.floor(xk / ds)), 0), N - 1)
+        tau = xk / ds - e
+        Lhat = 0.5 * (Lam[e] + Lam[e + 1])
+        gam = Lhat.T @ ((1.0 - tau) * rdot[e] + tau * rdot[e + 1])
+        return [np.concatenate([[F["fluid/density"][k][j], 0.5 * (u_lab[j] + u_lab[j + 1]), pk[j]], G[e], gam])
+                for j in (a, b)]
 
     # each side's state, averaged over the records n - span + 1 .. n + span - 1 (each read about its own shock
     # position; the captured shock's ringing is a parcel-scale oscillation that this averages out)
