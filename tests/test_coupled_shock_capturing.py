@@ -27,8 +27,13 @@ SOFT = {"mass_per_length": 1.0, "rotary_inertia": 1e-3, "bending_stiffness": 0.0
 BENT_SPINNING = {"curvature": [0.0, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 2.0], "velocity": [0.3, -0.2, 0.1]}
 
 
-def coupled_sod(M=50, nodes=11, h=2e-3, end=0.2, initial=None, shock=None, ends=("free", "free"), right=SOD[1]):
-    """Sod's tube (1 m, 1 m^2, p_ext = 0) on a rod; the diaphragm at s = 0.5."""
+#: a soft linear wall for the 1 m^2 tube (the gas swells it by ~3 %; radial frequency ~6 rad/s)
+WALL = {"law": "linear", "thickness": 1.0e-3, "density": 1000.0, "youngs_modulus": 1.0e4, "poisson_ratio": 0.45}
+
+
+def coupled_sod(M=50, nodes=11, h=2e-3, end=0.2, initial=None, shock=None, ends=("free", "free"), right=SOD[1],
+                wall=None):
+    """Sod's tube (1 m, 1 m^2, p_ext = 0) on a rod; the diaphragm at s = 0.5; ``wall``: keys over WALL."""
     rod = dict(SOFT, dimension=3, ends={"s0": ends[0], "sL": ends[1]})
     if initial:
         rod["initial"] = initial
@@ -39,6 +44,8 @@ def coupled_sod(M=50, nodes=11, h=2e-3, end=0.2, initial=None, shock=None, ends=
         fluid["ends"] = {"s0": "periodic", "sL": "periodic"}
     d = {"title": "coupled sod", "tube": {"length": 1.0, "nodes": nodes, "radius": 1.0 / math.sqrt(math.pi)},
          "rod": rod, "fluid": fluid, "time": {"step": h, "end": end}, "environment": {"external_pressure": 0.0}}
+    if wall is not None:
+        d["wall"] = dict(WALL, **wall)
     if shock is not False:
         d["shock_capturing"] = shock or {}
     return d
@@ -60,7 +67,10 @@ def _moved(model, q, rng, amp):
         Lam[-1], r[-1] = Lam[0], r[0] + model.rod.period
     q[model.rod_q] = pack_level(Lam, r, o)
     t = model.tube
-    q[model.tube_q][t.layout["s"]] += 0.2 * amp * (t.L / t.M) * rng.standard_normal(len(q[model.tube_q][t.layout["s"]]))
+    tq = q[model.tube_q]
+    tq[t.layout["s"]] += 0.2 * amp * (t.L / t.M) * rng.standard_normal(len(tq[t.layout["s"]]))
+    if "R" in t.layout and t.layout["R"].stop <= t.nq:  # a dynamic wall's radii
+        tq[t.layout["R"]] += 0.2 * amp * t.R0 * rng.standard_normal(len(tq[t.layout["R"]]))
     return q
 
 
@@ -82,6 +92,9 @@ CASES = {
     "bent-spinning-free": dict(initial=BENT_SPINNING),
     "clamped-limiter": dict(initial={"curvature": [0.0, 0.0, 0.8]}, ends=("clamped", "free"), shock={"limiter": "christensen"}),
     "periodic": dict(ends=("periodic", "periodic"), initial={"angular_velocity": [3.0, 0.0, 0.0]}, right=None),
+    "dynamic-wall": dict(initial=BENT_SPINNING, wall={"model": "dynamic"}),
+    "dynamic-wall-periodic-limiter": dict(ends=("periodic", "periodic"), wall={"model": "dynamic"}, right=None,
+                                          shock={"limiter": "christensen"}),
 }
 
 
@@ -100,7 +113,7 @@ def test_newton_block_is_the_derivative_of_the_force(case):
     pt = step.point(q0, z)
     lv0, lv1 = force._level_data(pt)
     V0, V1 = force.volumes(lv0), force.volumes(lv1)
-    Q = force.pressures(V0, V1, sim.h)[0]
+    Q = force.pressures(V0, V1, sim.h, lv0[0])[0]
     assert np.sum(Q > 0) >= 3  # the viscous pressure is on somewhere (else the test would test nothing)
     J = force.jacobian(pt).toarray()
     Jfd = np.empty_like(J)
@@ -156,15 +169,17 @@ def test_force_is_frame_indifferent():
     assert np.all(np.abs(Q) < 1e-12 * SOD[1][2])  # round-off of the volumes only (a rotation-blind rate gives ~1)
 
 
-def test_bent_spinning_tube_captures_sod_with_energy_to_second_order():
-    """Sod in a bent, spinning, translating free tube: entropy never decreases in any parcel, P and J to
-    round-off, densities, pressures and parcel lengths positive; the total energy (rod + gas, heat included)
-    is kept to the scheme's O(h^2) (the coupled midpoint scheme is variational, not energy-exact): the error
-    falls by ~4 when h halves and is < 1e-3 of the viscous work.  Without the heating the energy would drop by
-    the work itself."""
+@pytest.mark.parametrize("wall", [None, {"model": "dynamic"}], ids=["rigid", "dynamic-wall"])
+def test_bent_spinning_tube_captures_sod_with_energy_to_second_order(wall):
+    """Sod in a bent, spinning, translating free tube (rigid, or with a dynamic wall the gas swells by 0.8 %):
+    entropy never decreases in any parcel, P and J to round-off, densities, pressures and parcel lengths
+    positive; the total energy (rod + wall + gas, heat included) is kept to the scheme's O(h^2) (the coupled
+    midpoint scheme is variational, not energy-exact): the error falls by ~4 when h halves and is < 1e-3 of the
+    viscous work (measured 3.0e-6 and 2.3e-6 against 5.0e-3; order 2.0 and 1.9).  Without the heating the energy
+    would drop by the work itself."""
     worst = {}
     for h in (2e-3, 1e-3):
-        model = build(coupled_sod(M=50, h=h, initial=BENT_SPINNING))
+        model = build(coupled_sod(M=50 if wall is None else 40, h=h, initial=BENT_SPINNING, wall=wall))
         sim = Simulation(model)
         m0 = sim.monitors()
         E0, P0, J0 = m0["energy"], m0["linear_momentum"], m0["angular_momentum"]
@@ -184,8 +199,8 @@ def test_bent_spinning_tube_captures_sod_with_energy_to_second_order():
         assert work > 3e-3  # measured 4.9e-3: a shock formed and dissipated
         worst[h] = (w, work)
     (w1, work1), (w2, _) = worst[2e-3], worst[1e-3]
-    assert w1 < 1e-3 * work1  # measured 3.0e-6 against 5.0e-3
-    assert 3.0 < w1 / w2 < 5.0, (w1, w2)  # measured 4.0
+    assert w1 < 1e-3 * work1
+    assert 3.0 < w1 / w2 < 5.0, (w1, w2)  # measured 4.0 and 3.8
 
 
 def test_straight_coupled_tube_at_rest_reproduces_sod():
@@ -211,10 +226,8 @@ def test_straight_coupled_tube_at_rest_reproduces_sod():
     assert abs(err / straight - 1.0) < 0.02, (err, straight)
 
 
-def test_scene_refuses_a_wall_on_a_rod():
-    d = coupled_sod(M=8, nodes=5)
-    d["wall"] = {"model": "dynamic", "law": "linear", "thickness": 1e-3, "density": 1200.0, "youngs_modulus": 5e6,
-                 "poisson_ratio": 0.45}
+def test_scene_refuses_a_quasistatic_wall_on_a_rod():
+    d = coupled_sod(M=8, nodes=5, wall={"model": "quasistatic"})
     with pytest.raises(SceneError, match="shock_capturing"):
         build(d)
 

@@ -12,7 +12,8 @@ frames) of the rod nodes e0-1 .. e1+2 around the parcel.  It is invariant under 
 alone, so everything built from it below is frame indifferent.  The force (:class:`CoupledShockCapturing`):
 
 1. **Viscous pressure** Q_k, the law of varint.shock_capturing (von Neumann & Richtmyer 1950, Landshoff 1955)
-   with the compression rate du_k = (V_k^{n+1} - V_k^n)/(A h), A = pi R0^2 the rigid tube's cross-section:
+   with the compression rate du_k = (V_k^{n+1} - V_k^n)/(A h), A = pi R0^2 the rigid tube's cross-section
+   (a dynamic wall: the parcel's mean cross-section at level n, :meth:`CoupledShockCapturing.cross_sections`):
    the rate of change of the parcel's length along the centreline, frame indifferent (a rigidly moving or
    spinning tube has V^{n+1} = V^n parcel by parcel and is not viscous); rho_k, c_k at Vbar_k = (V^n + V^{n+1})/2.
 2. **Lagrange–d'Alembert pair** f^- = (h/2) sum_k Q_k grad V_k^n,  f^+ = (h/2) sum_k Q_k grad V_k^{n+1}: each
@@ -29,8 +30,10 @@ is variational, not a discrete-gradient scheme (its kinetic metric depends on th
 SO(3)), so its total energy is kept to O(h^2) (bounded), not to the Newton tolerance; a mean-value pressure would
 not change that.  The heating makes the energy lost by Q reappear as heat to that same order (docs/theory.md).
 
-Scope: an ideal gas in a rigid tube (no [wall]) on a [rod], closed or periodic ends (varint.scene refuses the
-rest in one line).  The Newton block is exact: d f^-/dz = (h/2) G0^T diag(dQ/dV^{n+1}) G1 with G_l = dV^l/dq in
+Scope: an ideal gas on a [rod], in a rigid tube or with a dynamic [wall] (then the radii are among the unknowns
+V_k^l reads, and the rate uses the parcel's mean cross-section at level n, V_k^n / (s_{k+1}^n - s_k^n)); closed or
+periodic ends.  A quasistatic wall (radii at half levels: V^{n+1} - V^n would miss the wall's motion) and open
+ends are refused in one line (varint.scene, varint.stepper).  The Newton block is exact: d f^-/dz = (h/2) G0^T diag(dQ/dV^{n+1}) G1 with G_l = dV^l/dq in
 the step's chart (tests/test_coupled_shock_capturing.py).
 """
 
@@ -62,6 +65,8 @@ class CoupledShockCapturing(Force):
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
         self.limiter = getattr(keys, "limiter", "none") == "christensen"
         self.A = math.pi * float(tube.R0) ** 2
+        #: a dynamic wall: the compression rate uses each parcel's mean cross-section at level n (below)
+        self.wall = bool(tube.has_wall)
         self.last_work = 0.0
         self.total_work = 0.0
         self._cache = None
@@ -119,13 +124,21 @@ class CoupledShockCapturing(Force):
         t = self.tube
         return np.exp(t.S / self.cv) * t.m ** self.gamma
 
-    def pressures(self, V0, V1, h):
-        """(Q, dQ/dV1) per parcel; with the limiter also sets the neighbours' derivatives (``self._off``)."""
+    def cross_sections(self, s0, V0):
+        """A per parcel in the rate du = dV/(A h): pi R0^2 in a rigid tube; with a dynamic wall the parcel's mean
+        cross-section per unit reference length at level n, V_k^n / (s_{k+1}^n - s_k^n) (as the straight swelling
+        tube's, varint.shock_capturing); both read level n only, so frame indifference is kept."""
+        return V0 / np.diff(s0) if self.wall else self.A
+
+    def pressures(self, V0, V1, h, s0=None):
+        """(Q, dQ/dV1) per parcel; with the limiter also sets the neighbours' derivatives (``self._off``).  ``s0``:
+        the level-n labels (needed with a wall)."""
         t = self.tube
-        Q, dQ = viscous_pressure(V0, V1, t.m, self._K(), self.gamma, self.A, h, self.cQ, self.cL)
+        A = self.cross_sections(s0, V0)
+        Q, dQ = viscous_pressure(V0, V1, t.m, self._K(), self.gamma, A, h, self.cQ, self.cL)
         self._off = None
         if self.limiter:
-            Q, dQ, lo, up = limited(Q, dQ, V0, V1, self.A, h, t.periodic)
+            Q, dQ, lo, up = limited(Q, dQ, V0, V1, A, h, t.periodic)
             self._off = (lo, up)
         return Q, dQ
 
@@ -144,7 +157,7 @@ class CoupledShockCapturing(Force):
             return
         V0 = self._level_n(lv0, False)[0]
         V1 = self.volumes(lv1)
-        Q = self.pressures(V0, V1, pt.h)[0]
+        Q = self.pressures(V0, V1, pt.h, lv0[0])[0]
         g = self._static(lv0 if level == 0 else lv1, Q, False)[1]  # -G_l^T Q in the kernel ordering
         f = -0.5 * pt.h * g[:self.nq]
         o, k = self.off, cf.n_nodes
@@ -168,7 +181,7 @@ class CoupledShockCapturing(Force):
             return sp.diags(np.full(nz, np.nan)).tocsc()
         V0, G0 = self._level_n(lv0, True)
         V1, G1 = self.volume_gradients(lv1)
-        _, dQ = self.pressures(V0, V1, pt.h)
+        _, dQ = self.pressures(V0, V1, pt.h, lv0[0])
         D = sp.diags(dQ) if self._off is None else tridiagonal(dQ, *self._off, t.periodic)
         k, nq = cf.n_nodes, self.nq
         Lam_n, xi = pt.Lam_n[:k], pt.xi[:k]
@@ -191,7 +204,7 @@ class CoupledShockCapturing(Force):
         """Viscous work W_k = -Q_k (V_k^{n+1} - V_k^n) >= 0 done on each parcel over the step."""
         lv0, lv1 = self._level_data(pt)
         V0, V1 = self.volumes(lv0), self.volumes(lv1)
-        Q = self.pressures(V0, V1, pt.h)[0]
+        Q = self.pressures(V0, V1, pt.h, lv0[0])[0]
         return -Q * (V1 - V0)
 
     def after_step(self, pt):
@@ -199,7 +212,7 @@ class CoupledShockCapturing(Force):
         t = self.tube
         lv0, lv1 = self._level_data(pt)
         V0, V1 = self.volumes(lv0), self.volumes(lv1)
-        Q = self.pressures(V0, V1, pt.h)[0]
+        Q = self.pressures(V0, V1, pt.h, lv0[0])[0]
         W = np.maximum(-Q * (V1 - V0), 0.0)  # Q > 0 only where V1 < V0 (the max guards round-off)
         t.S[:] = heated_entropy(t.S, V1, self._K(), W, self.gamma, self.cv)
         self.last_work = float(np.sum(W))

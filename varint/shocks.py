@@ -374,9 +374,9 @@ def measure_shock(path, record=-1, offset=4, window=None, gamma=None):
 
 
 def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, span=None, average=None):
-    """Jumps across the captured shock of one record of a coupled run file (a gas on a [rod], rigid tube), and
+    """Jumps across the captured shock of one record of a coupled run file (a gas on a [rod]), and
     their generalised Rankine–Hugoniot residuals (``RH_mass``, ``RH_momentum``, ``RH_energy``) in the tube's
-    convected frame (docs/theory.md §11a, "In the coupled tube").
+    convected frame (docs/theory.md §11a, "In the coupled tube").  A rigid tube or a dynamic wall; closed ends.
 
     The record (default: the file's middle one) must have records on either side, the run written every step
     around it: the rates are centred differences between records ``n - 1`` and ``n + 1``; the shock's speed is
@@ -392,7 +392,8 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
     * ``Gamma``, ``gam`` the tube's, at the shock (the same on both sides: the tube is smooth across the shock):
       the lattice strain Lambda_hat_e^T (r_{e+1} - r_e)/ds of the element holding the shock and
       Lambda_hat_e^T r_dot there, r_dot the nodes' centred rates interpolated linearly (Lambda_hat_e the
-      element's mean frame, the one that defines Gamma_e); ``Q = pi R0^2 |Gamma|``;
+      element's mean frame, the one that defines Gamma_e); ``Q = pi R^2 |Gamma|`` with R the tube's radius, a
+      wall's interpolated at the shock (``wall/R``);
     * the speed c = ds_shock/dt of the point where the pressure crosses the mean of the two states.
 
     Each side's (rho, u, p, Gamma, gam) is the mean over the records n - average .. n + average (default
@@ -430,8 +431,6 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
         raise ShockError(f"{path}: the stored scene has no tube.length, tube.radius and tube.nodes")
     if sc.get("rod", {}).get("ends", {}).get("s0") == "periodic":
         raise ShockError(f"{path}: periodic coupled tubes are not measured in this version")
-    if "wall" in sc:
-        raise ShockError(f"{path}: a coupled tube with a [wall] is not measured in this version (rigid tubes only)")
     gamma = float(sc.get("fluid", {}).get("gamma", 1.4)) if gamma is None else gamma
     R0, ds = float(tube["radius"]), float(tube["length"]) / (int(tube["nodes"]) - 1)
 
@@ -485,7 +484,9 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
         tau = xk / ds - e
         Lhat = 0.5 * (Lam[e] + Lam[e + 1])
         gam = Lhat.T @ ((1.0 - tau) * rdot[e] + tau * rdot[e + 1])
-        return [np.concatenate([[F["fluid/density"][k][j], 0.5 * (u_lab[j] + u_lab[j + 1]), pk[j]], G[e], gam])
+        # a wall's radius, at the shock too (the wall is continuous across it; nodes at s_j = j ds)
+        Rk = np.interp(xk, ds * np.arange(N + 1), F["wall/R"][k]) if "wall/R" in F else R0
+        return [np.concatenate([[F["fluid/density"][k][j], 0.5 * (u_lab[j] + u_lab[j + 1]), pk[j]], G[e], gam, [Rk]])
                 for j in (a, b)]
 
     # each side's state, averaged over the records n - span + 1 .. n + span - 1 (each read about its own shock
@@ -497,8 +498,8 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
 
     def state(x, straight=False):
         if straight:
-            return ideal_gas_state(x[0], x[1], x[2], gamma, R=R0)
-        return ideal_gas_state(x[0], x[1], x[2], gamma, R=R0, Gamma=x[3:6], gam=x[6:9])
+            return ideal_gas_state(x[0], x[1], x[2], gamma, R=x[9])
+        return ideal_gas_state(x[0], x[1], x[2], gamma, R=x[9], Gamma=x[3:6], gam=x[6:9])
 
     left, right = state(both[0]), state(both[1])
     res = rh_residuals(left, right, speed)
