@@ -173,10 +173,11 @@ def test_force_is_frame_indifferent():
 def test_bent_spinning_tube_captures_sod_with_energy_to_second_order(wall):
     """Sod in a bent, spinning, translating free tube (rigid, or with a dynamic wall the gas swells by 0.8 %):
     entropy never decreases in any parcel, P and J to round-off, densities, pressures and parcel lengths
-    positive; the total energy (rod + wall + gas, heat included) is kept to the scheme's O(h^2) (the coupled
-    midpoint scheme is variational, not energy-exact): the error falls by ~4 when h halves and is < 1e-3 of the
-    viscous work (measured 3.0e-6 and 2.3e-6 against 5.0e-3; order 2.0 and 1.9).  Without the heating the energy
-    would drop by the work itself."""
+    positive; the total energy (rod + wall + gas, heat included) is kept to the coupled scheme's own error (it is
+    variational, not energy-exact): < 2e-4 of the viscous work, falling by > 2.2 when h halves (measured
+    6.0e-7 / 2.3e-7 / 6.8e-8 at h = 2, 1, 0.5 ms against 5.0e-3, rigid; 6.4e-7 / 2.2e-7 / 6.5e-8 with the wall;
+    without the mean-value correction 3.0e-6 / 7.4e-7, without the capturing 1.6e-4).  Without the heating the
+    energy would drop by the work itself."""
     worst = {}
     for h in (2e-3, 1e-3):
         model = build(coupled_sod(M=50 if wall is None else 40, h=h, initial=BENT_SPINNING, wall=wall))
@@ -199,15 +200,15 @@ def test_bent_spinning_tube_captures_sod_with_energy_to_second_order(wall):
         assert work > 3e-3  # measured 4.9e-3: a shock formed and dissipated
         worst[h] = (w, work)
     (w1, work1), (w2, _) = worst[2e-3], worst[1e-3]
-    assert w1 < 1e-3 * work1
-    assert 3.0 < w1 / w2 < 5.0, (w1, w2)  # measured 4.0 and 3.8
+    assert w1 < 2e-4 * work1
+    assert 2.2 < w1 / w2 < 5.0, (w1, w2)  # measured 2.6 and 2.9 (3.4 for the next halving)
 
 
 def test_straight_coupled_tube_at_rest_reproduces_sod():
     """A straight coupled tube held at both ends (clamped: a free tube would recoil, and the gas would see an
     accelerating frame), axially stiff (the gas stretches it by 1e-4), is the straight tube: the L1 error of the
     density against the exact Riemann solution at N = 100 is the straight tube's (6.4e-3 there,
-    tests/test_shock_capturing.py) within 2 % (measured 6.43e-3 both)."""
+    tests/test_shock_capturing.py) within 2 % (measured 6.43e-3 both); energy to 1e-6 of E."""
     from test_shock_capturing import density_l1, fields, run, tube_scene
 
     M, end = 100, 0.2
@@ -215,8 +216,13 @@ def test_straight_coupled_tube_at_rest_reproduces_sod():
     n = int(math.ceil(end * M * cmax / 0.5))
     model = build(coupled_sod(M=M, h=end / n, end=end, ends=("clamped", "clamped")))
     sim = Simulation(model)
+    E0, worst = sim.monitors()["energy"], 0.0
     for _ in range(n):
         sim.step()
+        worst = max(worst, abs(sim.monitors()["energy"] - E0))
+    # the straight tube's V_k is linear in the labels, so with the mean-value correction the energy is kept to the
+    # rod's own (axial) midpoint error: measured 6e-8 of E (the midpoint pressure alone: 2e-5)
+    assert worst < 1e-6 * E0, worst / E0
     f = sim.fields()
     exact = RiemannSolution(*SOD, GAMMA)
     err = density_l1(f["fluid/s"], f["fluid/density"], exact, end)
@@ -235,10 +241,10 @@ def test_scene_refuses_a_quasistatic_wall_on_a_rod():
 def test_generalised_jump_conditions_hold_across_a_shock_in_a_stretched_bent_spinning_tube(tmp_path):
     """Sod in a bent, spinning, translating tube that the gas stretches by ~7 % (EA = 5 N), 100 parcels: across
     the captured shock (states 4 parcels either side, averaged over +-0.008 s; Gamma, gam of the tube at the
-    shock from the rod's fields) the paper's generalised RH_mass, RH_momentum, RH_energy hold to < 2.5e-2 of
-    the jumps (measured 2.4e-2, 1.1e-2, 1.8e-2; they fall with refinement: 1.7e-3, 4.1e-3, 9.7e-4 at 400 parcels,
+    shock from the rod's fields) the paper's generalised RH_mass, RH_momentum, RH_energy hold to < 3e-2 of
+    the jumps (measured 2.4e-2, 1.1e-2, 1.9e-2; they fall with refinement: 5.6e-3, 1.7e-4, 4.6e-3 at 400 parcels,
     scripts/coupled_shock_rh.py), while the straight-tube momentum condition (|Gamma| = 1) on the same data
-    misses by 7.3e-2 (and stays there with refinement)."""
+    misses by 7.3e-2 (and stays there with refinement: 6.5e-2 at 400 parcels)."""
     from varint.io import RunWriter
     from varint.shocks import measure_coupled_shock
 
@@ -265,7 +271,7 @@ def test_generalised_jump_conditions_hold_across_a_shock_in_a_stretched_bent_spi
     assert 0.04 < np.linalg.norm(res["left"].Gamma) - 1.0 < 0.1  # the tube is stretched
     assert -res["jumps"]["p"] > 0.15 and res["speed"] > 1.0  # a shock running towards +s, the high pressure behind it
     for k in ("mass", "momentum", "energy"):
-        assert res["relative"][k] < 2.5e-2, res["relative"]
+        assert res["relative"][k] < 3e-2, res["relative"]
     assert res["classical_relative"]["momentum"] > 4e-2, res["classical_relative"]
 
 

@@ -22,19 +22,24 @@ alone, so everything built from it below is frame indifferent.  The force (:clas
    parcel's volume.  Because V_k^l is invariant under a rigid motion of level l, sum_j f_j (force part) = 0 and
    sum_j (r_j x f_j + Lambda_j tau_j) = 0 at each level: the discrete Noether momenta P, J of §10.6 are kept to
    round-off.  The work of the pair over a step is (1/2) Q (grad V^n + grad V^{n+1}) . dq = Q dV + O(dq^3).
-3. **Heating** (``after_step``): each parcel's entropy rises so that its internal energy at V^{n+1} grows by
+3. **Mean-value correction** (``mean_value``, on): the pair carries X_k = Q_k + P~_k - p(Vhat_k) instead of Q_k,
+   P~_k = -(E_k(V^{n+1}) - E_k(V^n))/(V^{n+1} - V^n) the mean-value (discrete-gradient) pressure of §11a and
+   Vhat_k = (V_k^n + V_k^{n+1})/2: the conservative term's midpoint pressure p(Vbar) (Vbar at the midpoint data,
+   §10.4) is moved towards P~, whose work is exactly the internal energy's change.  Where V is linear in the
+   unknowns (a straight tube) Vbar = Vhat and the pressure work is then exact; elsewhere the remainder is the
+   coupled scheme's own O(h^2).
+4. **Heating** (``after_step``): each parcel's entropy rises so that its internal energy at V^{n+1} grows by
    W_k = -Q_k (V_k^{n+1} - V_k^n) >= 0 (no parcel's entropy decreases; W >= 0 by construction).
 
-The pressure of the conservative coupled scheme stays the midpoint p(Vbar) of §10.4: the coupled midpoint scheme
-is variational, not a discrete-gradient scheme (its kinetic metric depends on the labels and the rod lives on
-SO(3)), so its total energy is kept to O(h^2) (bounded), not to the Newton tolerance; a mean-value pressure would
-not change that.  The heating makes the energy lost by Q reappear as heat to that same order (docs/theory.md).
+The coupled midpoint scheme is variational, not a discrete-gradient scheme (its kinetic metric depends on the
+labels and the rod lives on SO(3)), so its total energy is kept to O(h^2) (bounded), not to the Newton tolerance;
+the force is built so that the shock adds nothing worse than that (docs/theory.md §11a, "In the coupled tube").
 
 Scope: an ideal gas on a [rod], in a rigid tube or with a dynamic [wall] (then the radii are among the unknowns
 V_k^l reads, and the rate uses the parcel's mean cross-section at level n, V_k^n / (s_{k+1}^n - s_k^n)); closed or
 periodic ends.  A quasistatic wall (radii at half levels: V^{n+1} - V^n would miss the wall's motion) and open
 ends are refused in one line (varint.scene, varint.stepper).  The Newton block is exact: d f^-/dz = (h/2) G0^T diag(dQ/dV^{n+1}) G1 with G_l = dV^l/dq in
-the step's chart (tests/test_coupled_shock_capturing.py).
+the step's chart, X for Q with the mean-value correction (tests/test_coupled_shock_capturing.py).
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .forces import Declaration, Force
-from .shock_capturing import heated_entropy, limited, tridiagonal, viscous_pressure
+from .shock_capturing import heated_entropy, limited, mean_value_pressure, tridiagonal, viscous_pressure
 
 __all__ = ["CoupledShockCapturing"]
 
@@ -67,6 +72,8 @@ class CoupledShockCapturing(Force):
         self.A = math.pi * float(tube.R0) ** 2
         #: a dynamic wall: the compression rate uses each parcel's mean cross-section at level n (below)
         self.wall = bool(tube.has_wall)
+        #: correct the midpoint pressure towards the mean-value one on the level volumes (docs/theory.md §11a)
+        self.mean_value = True
         self.last_work = 0.0
         self.total_work = 0.0
         self._cache = None
@@ -142,13 +149,26 @@ class CoupledShockCapturing(Force):
             self._off = (lo, up)
         return Q, dQ
 
+    def forcing(self, V0, V1, h, s0=None):
+        """(X, dX/dV1) per parcel: the pressure the force applies to the level volumes, X = Q, plus with
+        ``mean_value`` the correction P~ - p(Vhat) of the midpoint pressure towards the mean-value one (Vhat =
+        (V^n + V^{n+1})/2; docs/theory.md §11a, "In the coupled tube")."""
+        Q, dQ = self.pressures(V0, V1, h, s0)
+        if not self.mean_value:
+            return Q, dQ
+        K, g = self._K(), self.gamma
+        P, dP = mean_value_pressure(V0, V1, K, g)
+        Vh = 0.5 * (V0 + V1)
+        ph = K * Vh ** (-g)
+        return Q + P - ph, dQ + dP + 0.5 * g * ph / Vh
+
     def _valid(self, lv0, lv1):
         return self.cf._valid(lv0[0]) and self.cf._valid(lv1[0])
 
     # -- Force interface ---------------------------------------------------------------------
 
     def add(self, pt, d, level):
-        """f^- (level 0) = (h/2) G0^T Q, f^+ (level 1) = (h/2) G1^T Q into the rod's and the labels' rows."""
+        """f^- (level 0) = (h/2) G0^T X, f^+ (level 1) = (h/2) G1^T X into the rod's, labels' and radii's rows."""
         t, cf = self.tube, self.cf
         lv0, lv1 = self._level_data(pt)
         if not self._valid(lv0, lv1):
@@ -157,8 +177,8 @@ class CoupledShockCapturing(Force):
             return
         V0 = self._level_n(lv0, False)[0]
         V1 = self.volumes(lv1)
-        Q = self.pressures(V0, V1, pt.h, lv0[0])[0]
-        g = self._static(lv0 if level == 0 else lv1, Q, False)[1]  # -G_l^T Q in the kernel ordering
+        X = self.forcing(V0, V1, pt.h, lv0[0])[0]
+        g = self._static(lv0 if level == 0 else lv1, X, False)[1]  # -G_l^T X in the kernel ordering
         f = -0.5 * pt.h * g[:self.nq]
         o, k = self.off, cf.n_nodes
         d.rod[:k] += f[:6 * k].reshape(k, 6)
@@ -170,7 +190,7 @@ class CoupledShockCapturing(Force):
         d.tube_q += gz[:t.nq]
 
     def jacobian(self, pt):
-        """d f^-/dz = (h/2) Rot G0^T diag(dQ/dV1) G1 Chart: translational rows in the level-n body frames (as the
+        """d f^-/dz = (h/2) Rot G0^T diag(dX/dV1) G1 Chart: translational rows in the level-n body frames (as the
         residual), columns through the chart dr = Lambda^n db, sigma = dcay_{-xi} dxi (docs/theory.md §10.9)."""
         from .lie import dcay
 
@@ -181,8 +201,8 @@ class CoupledShockCapturing(Force):
             return sp.diags(np.full(nz, np.nan)).tocsc()
         V0, G0 = self._level_n(lv0, True)
         V1, G1 = self.volume_gradients(lv1)
-        _, dQ = self.pressures(V0, V1, pt.h, lv0[0])
-        D = sp.diags(dQ) if self._off is None else tridiagonal(dQ, *self._off, t.periodic)
+        _, dX = self.forcing(V0, V1, pt.h, lv0[0])
+        D = sp.diags(dX) if self._off is None else tridiagonal(dX, *self._off, t.periodic)
         k, nq = cf.n_nodes, self.nq
         Lam_n, xi = pt.Lam_n[:k], pt.xi[:k]
         blk_rot = np.zeros((k, 6, 6))
