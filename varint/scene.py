@@ -497,8 +497,8 @@ class _Validator:
         """``[shock_capturing]`` is energy-exact where every unknown the parcel volumes read carries inertia
         and the heating has a closed form: an ideal gas in a straight tube, rigid (uniform or
         ``tube.area_table``) or with a dynamic wall (linear law or tube law), midpoint scheme
-        (varint.shock_capturing); on a [rod] the same walls but area_table, which the coupled tube refuses anyway
-        (varint.coupled_shock_capturing)."""
+        (varint.shock_capturing); on a [rod] the same walls (area_table aside, which the coupled tube refuses
+        anyway), with the energy kept to the coupled scheme's own O(h^2) (varint.coupled_shock_capturing)."""
         kp = "shock_capturing"
         if sc.fluid is None or sc.fluid.model != "ideal-gas":
             self.bad(kp, "needs a [fluid] with model = 'ideal-gas' (the viscous work heats the gas)")
