@@ -74,6 +74,9 @@ class Model:
         self._layout()
         #: non-conservative forces (discrete Lagrange-d'Alembert, varint.forces.Force), every part's
         self.forces = [f for part in (self.tube, self.rod) if part is not None for f in getattr(part, "forces", [])]
+        for f in self.forces:
+            if hasattr(f, "bind"):  # a force reading both parts (the coupled tube's shock capturing)
+                f.bind(self)
         #: the evolving data at t = 0 (a force heats them in place as a run goes: every new run starts from these)
         self.initial_data = self.state_data()
         self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
@@ -255,6 +258,7 @@ class Model:
         if self.coupled:
             # docs/theory.md §10.6: the fluid's terms keep the rigid motions; its gravity breaks what the rod's does
             decl.append(Declaration("fluid"))
+            decl += [f.declaration for f in self.tube.forces]  # e.g. the shock capturing's heating breaks parcel_entropy
             if self.tube.has_wall:
                 decl.append(Declaration("wall"))
         return decl

@@ -181,8 +181,8 @@ SCHEMA = MappingProxyType({
     "shock_capturing": (
         Key("quadratic", "float", 1.0, "", "c_Q of the von Neumann-Richtmyer viscous pressure Q = rho (c_Q^2 du^2 + c_L c abs(du)), "
             "acting in compression only (du < 0: the jump of the step's label velocity across a parcel); c_Q sets the "
-            "shock's width in parcels (docs/theory.md §11a). Needs an ideal gas in a straight tube, rigid (uniform or "
-            "tube.area_table) or with a dynamic wall (no [rod], no quasistatic wall), and the midpoint scheme", low=0.0),
+            "shock's width in parcels (docs/theory.md §11a). Needs an ideal gas and the midpoint scheme: in a straight tube, "
+            "rigid (uniform or tube.area_table) or with a dynamic wall (no quasistatic wall), also on a [rod]", low=0.0),
         Key("linear", "float", 0.5, "", "c_L of the linear (Landshoff) part of Q: damps the ringing behind the shock "
             "(and, at first order, smooth compressions: see limiter)", low=0.0),
         Key("limiter", "str", "none", "", "christensen: Christensen's limiter on Q, no viscosity in smooth compressions "
@@ -498,15 +498,14 @@ class _Validator:
         """``[shock_capturing]`` is energy-exact where every unknown the parcel volumes read carries inertia
         and the heating has a closed form: an ideal gas in a straight tube, rigid (uniform or
         ``tube.area_table``) or with a dynamic wall (linear law or tube law), midpoint scheme
-        (varint.shock_capturing)."""
+        (varint.shock_capturing); on a [rod] the same walls (area_table aside, which the coupled tube refuses
+        anyway), with the energy kept to the coupled scheme's own O(h^2) (varint.coupled_shock_capturing)."""
         kp = "shock_capturing"
         if sc.fluid is None or sc.fluid.model != "ideal-gas":
             self.bad(kp, "needs a [fluid] with model = 'ideal-gas' (the viscous work heats the gas)")
         elif sc.wall is not None and sc.wall.model != "dynamic":
             self.bad(kp, "needs wall.model = 'dynamic' (a quasistatic wall's radii are half-level unknowns, "
                          "for which the energy balance is not exact)")
-        elif sc.rod is not None:
-            self.bad(kp, "not available with a [rod] in this version (the moving tube's kinetic metric is not yet covered)")
         elif sc.time.scheme != "midpoint":
             self.bad("time.scheme", "[shock_capturing] needs 'midpoint' (its viscous pressure is implicit)")
 

@@ -33,8 +33,8 @@ parcel quantities), and no parcel's entropy decreases.
 
 An ideal gas (the heating has a closed form) with the midpoint scheme in a straight tube: rigid and
 uniform, rigid with ``tube.area_table``, or with a dynamic wall (linear law or tube law).  varint.scene
-refuses a quasistatic wall (its radii are half-level unknowns), the coupled tube (``[rod]``) and other fluids
-in one line.  Kernels are numba; tests/test_shock_capturing.py checks each one against finite differences,
+refuses a quasistatic wall (its radii are half-level unknowns) and other fluids in one line; the coupled tube
+(``[rod]``) has its own force, varint.coupled_shock_capturing.  Kernels are numba; tests/test_shock_capturing.py checks each one against finite differences,
 closed forms or a NumPy reference.
 """
 

@@ -110,9 +110,14 @@ class TubePart:
         #: [shock_capturing]: viscous pressure, energy-exact pressure and heating (varint.shock_capturing)
         self.shock_capturing = None
         if getattr(scene, "shock_capturing", None) is not None and not self.open:
-            from .shock_capturing import make_shock_capturing
+            if self.coupled:  # on a [rod]: the stretched volumes of the moving tube (bound to the model by Model)
+                from .coupled_shock_capturing import CoupledShockCapturing
 
-            self.shock_capturing = make_shock_capturing(self, scene.shock_capturing)
+                self.shock_capturing = CoupledShockCapturing(self, scene.shock_capturing)
+            else:
+                from .shock_capturing import make_shock_capturing
+
+                self.shock_capturing = make_shock_capturing(self, scene.shock_capturing)
             self.forces.append(self.shock_capturing)
 
     # -- layout -------------------------------------------------------------
