@@ -62,7 +62,7 @@ def main(argv=None):
         c, h = per_step(n, a.steps, a.repeat)
         print(f"{n:8d}  {h:9.3g}  {1e3 * c:7.2f}  {1e6 * c / n:8.1f}")
     # the threshold: modes route
-    from test_flowing_modes import pipe_text  # the nearly inextensible pipe's scene text (flowing_modes takes text)
+    from varint.pipe_scenes import pipe_scene_text as pipe_text  # the nearly inextensible pipe's scene text
 
     t0 = time.perf_counter()
     res = threshold(pipe_text(("clamped", "free"), BETA, 1.0, 21, 2), 5.0 / math.sqrt(BETA), 6.2 / math.sqrt(BETA),

@@ -9,15 +9,13 @@ thresholds come from varint.flowing_modes.threshold (bisection on the largest gr
 """
 
 import argparse
-import os
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 
-from test_flowing_modes import pipe_text  # noqa: E402
+from varint.pipe_scenes import pipe_scene_text as pipe_text  # noqa: E402
 
 from varint import pipe_stability as ps  # noqa: E402
 from varint.flowing_modes import threshold  # noqa: E402

@@ -28,9 +28,8 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
-from test_flowing_modes import pipe_text  # noqa: E402
+from varint.pipe_scenes import pipe_scene_text as pipe_text  # noqa: E402
 
 from varint import pipe_stability as ps  # noqa: E402
 

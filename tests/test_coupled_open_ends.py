@@ -20,6 +20,7 @@ from varint import pipe_stability as ps
 from varint.errors import SceneError, SolverError
 from varint.model import build_model
 from varint.modes_api import scene_modes
+from varint.pipe_scenes import pipe_scene_text
 from varint.scene import parse_scene
 from varint.stepper import Simulation
 
@@ -28,45 +29,9 @@ BETA = 0.2
 
 def pipe(ends=("clamped", "free"), u=1.0, nodes=21, dim=2, h=1e-3, constraint="inextensible_unshearable",
          kick=0.0, profile="tip", gravity=0.0):
-    """A [rod] + [fluid] pipe with open ends at Païdoussis' (u, beta = 0.2): EI = 1, L = 1, M + m = 1."""
-    M, m, R = BETA, 1.0 - BETA, 0.01
-    U = float(u / np.sqrt(M))
-    pert = ""
-    if kick:
-        shape = ('shape = "step"\nfrom = 0.0\nto = 1.0' if profile == "tip"
-                 else 'shape = "cosine"\nwavelength = 2.0\nphase = -1.5707963267948966')
-        pert = f'[[rod.perturbation]]\nfield = "velocity"\n{shape}\namplitude = {kick!r}\n'
-    grav = f"[environment]\ngravity = [{float(gravity)!r}, 0.0, 0.0]\n" if gravity else ""
-    return parse_scene(f"""title = "pipe conveying liquid, open ends"
-[tube]
-length = 1.0
-nodes = {nodes}
-radius = {R!r}
-
-[rod]
-dimension = {dim}
-mass_per_length = {m!r}
-rotary_inertia = {m * 1e-6!r}
-bending_stiffness = 1.0
-torsional_stiffness = 1.0
-axial_stiffness = 1.0e7
-shear_stiffness = 1.0e7
-constraint = "{constraint}"
-ends = {{ s0 = "{ends[0]}", sL = "{ends[1]}" }}
-{pert}
-[fluid]
-model = "incompressible"
-density = {float(M / (np.pi * R * R))!r}
-velocity = {U!r}
-pressure = 1.0e5
-parcels = {nodes - 1}
-ends = {{ s0 = "inflow", sL = "outflow" }}
-
-{grav}
-[time]
-step = {h!r}
-end = {h!r}
-""")
+    """A [rod] + [fluid] pipe with open ends at Païdoussis' (u, BETA): EI = 1, L = 1, M + m = 1 (varint.pipe_scenes)."""
+    return parse_scene(pipe_scene_text(ends, BETA, u, nodes, dim, gravity, constraint=constraint, h=h, kick=kick,
+                                       profile=profile))
 
 
 def run(scene, T, probe=-1):

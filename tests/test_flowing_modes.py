@@ -18,44 +18,8 @@ from varint.errors import VarintError
 from varint.flowing_modes import first_order_modes, flow_matrices, flowing_linearization, threshold
 from varint.model import build_model
 from varint.modes_api import scene_modes, strongest
+from varint.pipe_scenes import pipe_scene_text as pipe_text
 from varint.scene import parse_scene
-
-
-def pipe_text(ends=("clamped", "free"), beta=0.2, u=1.0, nodes=41, dim=2, gamma=0.0, open_ends=True, extra=""):
-    """A [rod] + [fluid] pipe with Païdoussis' (u, beta, gamma): EI = 1, L = 1, M + m = 1, gravity along the tube."""
-    M, m, R = beta, 1.0 - beta, 0.01
-    U = float(u / np.sqrt(M))
-    fluid_ends = 'ends = { s0 = "inflow", sL = "outflow" }' if open_ends else ""
-    grav = f"[environment]\ngravity = [{float(gamma)!r}, 0.0, 0.0]\n" if gamma else ""
-    return f"""title = "pipe conveying fluid"
-[tube]
-length = 1.0
-nodes = {nodes}
-radius = {R!r}
-
-[rod]
-dimension = {dim}
-mass_per_length = {m!r}
-rotary_inertia = {m * 1e-6!r}
-bending_stiffness = 1.0
-torsional_stiffness = 1.0
-axial_stiffness = 1.0e7
-shear_stiffness = 1.0e7
-ends = {{ s0 = "{ends[0]}", sL = "{ends[1]}" }}
-
-[fluid]
-model = "incompressible"
-density = {float(M / (np.pi * R * R))!r}
-velocity = {U if open_ends else 0.0!r}
-pressure = 1.0e5
-parcels = {nodes - 1}
-{fluid_ends}
-{extra}
-{grav}
-[time]
-step = 1e-3
-end = 1e-3
-"""
 
 
 def model_of(*args, **kw):
