@@ -18,36 +18,9 @@ import sys
 import tempfile
 import time
 
+from varint.pipe_scenes import pipe_scene_text
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-PIPE = """title = "cantilevered pipe conveying fluid (bench_sweep)"
-[tube]
-length = 1.0
-nodes = {nodes}
-radius = 0.01
-
-[rod]
-dimension = 2
-mass_per_length = 0.8
-rotary_inertia = 8.0e-7
-bending_stiffness = 1.0
-torsional_stiffness = 1.0
-axial_stiffness = 1.0e7
-shear_stiffness = 1.0e7
-ends = {{ s0 = "clamped", sL = "free" }}
-
-[fluid]
-model = "incompressible"
-density = {density!r}
-velocity = 5.0
-pressure = 1.0e5
-parcels = {parcels}
-ends = {{ s0 = "inflow", sL = "outflow" }}
-
-[time]
-step = 1e-3
-end = 1e-3
-"""
 
 
 def run_sweep(scene, out, points, workers):
@@ -69,7 +42,8 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         scene = os.path.join(tmp, "pipe.toml")
         with open(scene, "w") as f:
-            f.write(PIPE.format(nodes=a.nodes, parcels=a.nodes - 1, density=0.2 / (math.pi * 0.01 ** 2)))
+            # the cantilevered pipe at beta = 0.2 with the inflow at 5 m/s (u = 5 sqrt(0.2))
+            f.write(pipe_scene_text(("clamped", "free"), 0.2, 5.0 * math.sqrt(0.2), a.nodes, 2))
         start = {w: run_sweep(scene, os.path.join(tmp, f"start{w}"), 1, w) for w in (1, 2)}
         times = {1: [], 2: []}
         for r in range(a.repeat):
