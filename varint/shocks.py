@@ -293,6 +293,21 @@ def _crossing(s_centres, p, i, level):
     return s_centres[i] + t * (s_centres[i + 1] - s_centres[i])
 
 
+def _steepest_jump(F, k, window, path):
+    """(i, parcel centres, pressures) of record k: i the neighbouring parcels (i, i+1) with the largest pressure jump
+    (inside ``window`` = (s_min, s_max) when given)."""
+    s = F["fluid/s"][k]
+    p = F["fluid/pressure"][k]
+    c = 0.5 * (s[:-1] + s[1:])
+    dp = np.abs(np.diff(p))
+    if window is not None:
+        dp = np.where((c[:-1] >= window[0]) & (c[1:] <= window[1]), dp, -1.0)
+    i = int(np.argmax(dp))
+    if dp[i] <= 0:
+        raise ShockError(f"{path}: no pressure jump found in record {k}")
+    return i, c, p
+
+
 def measure_shock(path, record=-1, offset=4, window=None, gamma=None):
     """Jumps across the captured shock of one record of a run file, and their Rankine–Hugoniot residuals.
 
@@ -329,16 +344,7 @@ def measure_shock(path, record=-1, offset=4, window=None, gamma=None):
     t = run["time"]
 
     def locate(k):
-        s = F["fluid/s"][k]
-        p = F["fluid/pressure"][k]
-        c = 0.5 * (s[:-1] + s[1:])
-        dp = np.abs(np.diff(p))
-        if window is not None:
-            dp = np.where((c[:-1] >= window[0]) & (c[1:] <= window[1]), dp, -1.0)
-        i = int(np.argmax(dp))
-        if dp[i] <= 0:
-            raise ShockError(f"{path}: no pressure jump found in record {k}")
-        return i, c, p
+        return _steepest_jump(F, k, window, path)
 
     i, c, p = locate(n)
     M = len(p)
@@ -435,16 +441,7 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
     R0, ds = float(tube["radius"]), float(tube["length"]) / (int(tube["nodes"]) - 1)
 
     def locate(k):
-        s = F["fluid/s"][k]
-        p = F["fluid/pressure"][k]
-        c = 0.5 * (s[:-1] + s[1:])
-        dp = np.abs(np.diff(p))
-        if window is not None:
-            dp = np.where((c[:-1] >= window[0]) & (c[1:] <= window[1]), dp, -1.0)
-        i = int(np.argmax(dp))
-        if dp[i] <= 0:
-            raise ShockError(f"{path}: no pressure jump found in record {k}")
-        return i, c, p
+        return _steepest_jump(F, k, window, path)
 
     i, c, p = locate(n)
     M = len(p)
