@@ -192,7 +192,7 @@ class CoupledShockCapturing(Force):
     def jacobian(self, pt):
         """d f^-/dz = (h/2) Rot G0^T diag(dX/dV1) G1 Chart: translational rows in the level-n body frames (as the
         residual), columns through the chart dr = Lambda^n db, sigma = dcay_{-xi} dxi (docs/theory.md §10.9)."""
-        from .lie import dcay
+        from .coupled_terms import level_chart_maps
 
         t, cf = self.tube, self.cf
         lv0, lv1 = self._level_data(pt)
@@ -205,15 +205,7 @@ class CoupledShockCapturing(Force):
         D = sp.diags(dX) if self._off is None else tridiagonal(dX, *self._off, t.periodic)
         k, nq = cf.n_nodes, self.nq
         Lam_n, xi = pt.Lam_n[:k], pt.xi[:k]
-        blk_rot = np.zeros((k, 6, 6))
-        blk_rot[:, :3, :3] = np.swapaxes(Lam_n, 1, 2)
-        blk_rot[:, 3:, 3:] = np.eye(3)
-        blk_chart = np.zeros((k, 6, 6))
-        blk_chart[:, :3, :3] = Lam_n
-        blk_chart[:, 3:, 3:] = dcay(-xi)
-        eye = sp.identity(nq - 6 * k, format="csr")
-        Rot = sp.block_diag([sp.block_diag(list(blk_rot), format="csr"), eye], format="csr")
-        Chart = sp.block_diag([sp.block_diag(list(blk_chart), format="csr"), eye], format="csr")
+        Rot, Chart = level_chart_maps(Lam_n, xi, nq - 6 * k)
         Jk = (Rot @ (0.5 * pt.h * (G0.T @ D @ G1)) @ Chart).tocoo()
         r, c, v = Jk.row, Jk.col, Jk.data
         zr, zc = cf.z_of[r], cf.z_of[c]

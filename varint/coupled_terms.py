@@ -179,6 +179,24 @@ class StepTerm(NamedTuple):
     newton: tuple | None
 
 
+def level_chart_maps(Lam_n, xi, n_rest):
+    """(Rot, Chart): sparse maps between a level gradient's rod entries per node [dr spatial, sigma] and the step's
+    Newton rows and columns (docs/theory.md §10.9): Rot turns each node's translational rows into its level-n body
+    frame (Lambda_n^T), Chart chains columns through dr = Lambda_n db, sigma = dcay_{-xi} dxi; the ``n_rest`` entries
+    after the nodes' (labels, radii) pass unchanged."""
+    k = len(Lam_n)
+    blk_rot = np.zeros((k, 6, 6))
+    blk_rot[:, :3, :3] = np.swapaxes(Lam_n, 1, 2)
+    blk_rot[:, 3:, 3:] = np.eye(3)
+    blk_chart = np.zeros((k, 6, 6))
+    blk_chart[:, :3, :3] = Lam_n
+    blk_chart[:, 3:, 3:] = dcay(-xi)
+    eye = sp.identity(n_rest, format="csr")
+    Rot = sp.block_diag([sp.block_diag(list(blk_rot), format="csr"), eye], format="csr")
+    Chart = sp.block_diag([sp.block_diag(list(blk_chart), format="csr"), eye], format="csr")
+    return Rot, Chart
+
+
 def newton_offsets(n_nodes, n_labels, nR, n_mu=0):
     """Offsets of the blocks in the Newton ordering, and its size: ``({"rod", "s", "R", "mu"}, n)``."""
     off = {"rod": 0, "s": 6 * n_nodes, "R": 6 * n_nodes + n_labels, "mu": 6 * n_nodes + n_labels + nR}

@@ -476,7 +476,7 @@ class CoupledFluid:
         columns d(D1)/dmu_n = -h d^2U_mu(q_n)/dq dmu (translational rows in the level-n frames), rows
         d(h (V(q_{n+1}) - V0))/d(b, xi, s, R) = -h d^2U_mu(q_{n+1})/dmu dq chained through dr = Lambda^n db,
         sigma = dcay_{-xi} dxi (the chart of docs/theory.md §10.9)."""
-        from .lie import dcay
+        from .coupled_terms import level_chart_maps
 
         o, n = self.off0, self.n0
         keep = (r < o["mu"]) & (c < o["mu"])
@@ -486,15 +486,7 @@ class CoupledFluid:
         else:
             Lam_n, xi = pt.Lam_n[:self.n_nodes], pt.xi[:self.n_nodes]
         k, nq = len(Lam_n), o["mu"]
-        blk_rot = np.zeros((k, 6, 6))
-        blk_rot[:, :3, :3] = np.swapaxes(Lam_n, 1, 2)
-        blk_rot[:, 3:, 3:] = np.eye(3)
-        blk_chart = np.zeros((k, 6, 6))
-        blk_chart[:, :3, :3] = Lam_n
-        blk_chart[:, 3:, 3:] = dcay(-xi)
-        eye = sp.identity(nq - 6 * k, format="csr")
-        Rot = sp.block_diag([sp.block_diag(list(blk_rot), format="csr"), eye], format="csr")
-        Chart = sp.block_diag([sp.block_diag(list(blk_chart), format="csr"), eye], format="csr")
+        Rot, Chart = level_chart_maps(Lam_n, xi, nq - 6 * k)
         C = (Rot @ (-pt.h * H0[:nq, nq:])).tocoo()
         Rw = ((-pt.h * H1[nq:, :nq]) @ Chart).tocoo()
         return (np.concatenate([r[keep], C.row, nq + Rw.row]), np.concatenate([c[keep], nq + C.col, Rw.col]),
