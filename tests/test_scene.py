@@ -176,3 +176,17 @@ def test_check_says_what_the_fluid_ends_are(tmp_path, capsys, ends, words):
     assert main(["check", str(f)]) == 0
     lattice = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("lattice:")]
     assert len(lattice) == 1 and words in lattice[0], lattice
+
+
+@pytest.mark.parametrize("parcels,hint", [(40, False), (20, True)])
+def test_check_says_the_parcels_per_element_of_a_flowing_pipe_and_warns_below_two(tmp_path, capsys, parcels, hint):
+    """A rod carrying liquid through open ends: the lattice line gives the parcels per element and, below two, points
+    at the label-passing instability (docs/theory.md §12)."""
+    from varint.pipe_scenes import pipe_scene_text
+
+    f = tmp_path / "pipe.toml"
+    f.write_text(pipe_scene_text(nodes=21, parcels=parcels, constraint="inextensible_unshearable"))
+    assert main(["check", str(f)]) == 0
+    lattice = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("lattice:")]
+    assert len(lattice) == 1 and f"{parcels} parcels ({parcels / 20:g} per element), open ends" in lattice[0], lattice
+    assert ("fewer than 2 parcels per element" in lattice[0]) == hint

@@ -111,7 +111,15 @@ def cmd_check(args):
           + f"; total {d['unknowns_total']} ({d['inertial_unknowns']} inertial, {d['algebraic_unknowns']} algebraic)")
     print(f"  expected invariants: {', '.join(d['invariants']) or 'none (every symmetry is broken by a force, a load or a support)'}")
     lat = d["lattice"]
-    if "rod" in d:
+    if "rod" in d and scene.fluid is not None:
+        per = lat["parcels"] / max(lat["elements"], 1)
+        hint = ""
+        if scene.fluid.ends.s0 not in ("closed", "periodic") and per < 2:
+            hint = (" — fewer than 2 parcels per element: at fast flows the labels passing the nodes pump lattice "
+                    "modes (docs/theory.md §12)")
+        print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m, {lat['parcels']} parcels "
+              f"({per:.3g} per element), {_ends_text(scene)}{hint}")
+    elif "rod" in d:
         print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m")
         print("  rod: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["rod"].items()))
         print(f"  initial shape: {d['initial_shape']}")
