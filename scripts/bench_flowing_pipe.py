@@ -24,15 +24,26 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
-
-from test_coupled_open_ends import pipe, run  # noqa: E402
 
 from varint.flowing_modes import threshold  # noqa: E402
 from varint.model import build_model  # noqa: E402
+from varint.pipe_scenes import pipe_scene_text  # noqa: E402
+from varint.scene import parse_scene  # noqa: E402
 from varint.stepper import Simulation  # noqa: E402
 
 BETA = 0.2
+
+
+def pipe(ends, u, nodes, h, kick):
+    """The inextensible pipe of the tests (tests/test_coupled_open_ends.py) at beta = BETA."""
+    return parse_scene(pipe_scene_text(ends, BETA, u, nodes, 2, constraint="inextensible_unshearable", h=h, kick=kick))
+
+
+def run(scene, T):
+    sim = Simulation(build_model(scene))
+    for _ in range(int(round(T / sim.h))):
+        sim.step()
+    return sim
 
 
 def per_step(elements, steps, repeat, u=2.0):
@@ -62,10 +73,8 @@ def main(argv=None):
         c, h = per_step(n, a.steps, a.repeat)
         print(f"{n:8d}  {h:9.3g}  {1e3 * c:7.2f}  {1e6 * c / n:8.1f}")
     # the threshold: modes route
-    from varint.pipe_scenes import pipe_scene_text as pipe_text  # the nearly inextensible pipe's scene text
-
     t0 = time.perf_counter()
-    res = threshold(pipe_text(("clamped", "free"), BETA, 1.0, 21, 2), 5.0 / math.sqrt(BETA), 6.2 / math.sqrt(BETA),
+    res = threshold(pipe_scene_text(("clamped", "free"), BETA, 1.0, 21, 2), 5.0 / math.sqrt(BETA), 6.2 / math.sqrt(BETA),
                     count=8, rtol=1e-3)
     t_modes = time.perf_counter() - t0
     u_modes = res["value"] * math.sqrt(BETA)

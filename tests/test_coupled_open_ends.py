@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from varint import pipe_stability as ps
+from varint.analysis import peak_growth_rate
 from varint.errors import SceneError, SolverError
 from varint.model import build_model
 from varint.modes_api import scene_modes
@@ -47,10 +48,7 @@ def run(scene, T, probe=-1):
 
 def peak_rate(t, y, skip=1):
     """Growth rate from the peaks of |y| (log-linear fit), leaving out the first ``skip`` (the kick's transient)."""
-    a = np.abs(y)
-    pk = [i for i in range(1, len(a) - 1) if a[i] >= a[i - 1] and a[i] > a[i + 1]]
-    assert len(pk) >= skip + 3, f"too few peaks ({len(pk)}) to fit a rate"
-    return np.polyfit(t[pk][skip:], np.log(a[pk][skip:]), 1)[0]
+    return peak_growth_rate(t, y, skip)
 
 
 def modes_rate(ends, u, nodes):

@@ -216,3 +216,18 @@ def test_liquid_held_at_the_levels_has_no_alternating_mode():
     exact = max(theory(U), key=lambda w: w.imag)
     w = dominant(np.array(c)[600:], h)
     assert w.imag == pytest.approx(exact.imag, rel=0.1)
+
+
+def test_peak_growth_rate_reads_the_rate_of_a_known_oscillation():
+    """varint.analysis.peak_growth_rate (the rate the pipe runs are judged by) on exp(a t) sin(w t), growing and
+    decaying, with a transient left out; too few peaks is a ValueError."""
+    from varint.analysis import peak_growth_rate
+
+    t = np.linspace(0.0, 10.0, 20001)
+    for a in (0.3, -0.45):
+        y = np.exp(a * t) * np.sin(5.0 * t + 0.3)
+        assert peak_growth_rate(t, y) == pytest.approx(a, abs=2e-3)
+    y = np.exp(0.2 * t) * np.sin(5.0 * t) + 5.0 * np.exp(-3.0 * t) * np.sin(17.0 * t)  # a fast transient
+    assert peak_growth_rate(t[t > 2.0], y[t > 2.0], skip=0) == pytest.approx(0.2, abs=5e-3)
+    with pytest.raises(ValueError, match="too few peaks"):
+        peak_growth_rate(t[:300], np.sin(5.0 * t[:300]))

@@ -19,7 +19,7 @@ from .errors import VarintError
 
 __all__ = ["linearization", "modes", "modes_of", "gyroscopic_modes_of", "sparse_modes_of", "sparse_gyroscopic_modes_of", "dispersion_branches", "webster_frequencies", "euler_bernoulli_cantilever",
            "timoshenko_cantilever", "elastica_cantilever_tip", "spinning_shaft_whirl", "flowing_pipe_waves",
-           "flowing_pipe_critical_speed"]
+           "flowing_pipe_critical_speed", "peak_growth_rate"]
 
 
 def _tube(model):
@@ -441,3 +441,15 @@ def spinning_free_rod_flap(EI, rhoA, L, spin, omega_max, samples=400):
             if fa == 0.0 or fa * fb < 0:
                 roots.append(brentq(lambda w: ends(w, starts), a, b, xtol=1e-13, rtol=1e-13))
     return sorted(roots)
+
+
+def peak_growth_rate(t, y, skip=1):
+    """Growth rate [1/time] of an oscillation from the peaks of |y(t)|: the slope of a least-squares line through
+    log |y| at the peaks, leaving out the first ``skip`` (a kick's transient).  Positive: growing.  Raises
+    ValueError with fewer than three peaks to fit."""
+    a = np.abs(np.asarray(y, dtype=float))
+    t = np.asarray(t, dtype=float)
+    pk = [i for i in range(1, len(a) - 1) if a[i] >= a[i - 1] and a[i] > a[i + 1]][skip:]
+    if len(pk) < 3:
+        raise ValueError(f"too few peaks ({len(pk)} after skipping {skip}) to fit a growth rate")
+    return float(np.polyfit(t[pk], np.log(a[pk]), 1)[0])
