@@ -3,7 +3,7 @@
 
 In the coupled tube the liquid's kinetic energy is sum_k 1/2 mbar_k |Xdot(s_k)|^2 with X(s) = sum_j N_j(s) r_j the
 Catmull-Rom centreline (docs/theory.md §10.2).  Its mass matrix on the nodes, M_jl = sum_k mbar_k N_j(s_k) N_l(s_k),
-and its gyroscopic (Coriolis) coupling, sum_k mbar_k N_j(s_k) N_l'(s_k), depend on where the labels sit in their
+and its gyroscopic (Coriolis) coupling, sum_k mbar_k N_j(s_k) N_l'(s_k) (printed for l = j - 1), depend on where the labels sit in their
 elements.  In a uniform flow every label moves at U, so with p parcels per element these matrices are periodic in
 time at the label-passing frequency p U / ds: a parametric forcing of every lattice mode.  The continuum has none
 (the liquid is uniform along s).  This script prints, per unit length of liquid, the mean of each entry over the
@@ -37,7 +37,7 @@ def modulation(per_element, lag, gyroscopic=False, samples=401):
 
 def main():
     print("| parcels per element | M_jj: mean, swing | M_j,j+1: mean, swing | M_j,j+2: mean, swing | "
-          "gyroscopic N_j N'_j+1: mean, swing |")
+          "gyroscopic N_j N'_j-1: mean, swing |")
     print("|---|---|---|---|---|")
     for p in (1, 2, 3, 4):
         cells = [modulation(p, lag) for lag in (0, 1, 2)] + [modulation(p, 1, gyroscopic=True)]

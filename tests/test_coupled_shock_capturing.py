@@ -221,7 +221,7 @@ def test_straight_coupled_tube_at_rest_reproduces_sod():
         sim.step()
         worst = max(worst, abs(sim.monitors()["energy"] - E0))
     # the straight tube's V_k is linear in the labels, so with the mean-value correction the energy is kept to the
-    # rod's own (axial) midpoint error: measured 6e-8 of E (the midpoint pressure alone: 2e-5)
+    # rod's own (axial) midpoint error: measured 2.6e-8 of E (docs/validation.md; the midpoint pressure alone: 2e-5)
     assert worst < 1e-6 * E0, worst / E0
     f = sim.fields()
     exact = RiemannSolution(*SOD, GAMMA)

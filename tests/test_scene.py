@@ -187,6 +187,9 @@ def test_check_says_the_parcels_per_element_of_a_flowing_pipe_and_warns_below_tw
     f = tmp_path / "pipe.toml"
     f.write_text(pipe_scene_text(nodes=21, parcels=parcels, constraint="inextensible_unshearable"))
     assert main(["check", str(f)]) == 0
-    lattice = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("lattice:")]
+    out = capsys.readouterr().out.splitlines()
+    lattice = [line for line in out if line.strip().startswith("lattice:")]
     assert len(lattice) == 1 and f"{parcels} parcels ({parcels / 20:g} per element), open ends" in lattice[0], lattice
+    assert any(line.strip().startswith("rod: dimension = 2") for line in out)  # the rod's lines stay
+    assert any(line.strip().startswith("initial shape:") for line in out)
     assert ("fewer than 2 parcels per element" in lattice[0]) == hint

@@ -121,6 +121,7 @@ def cmd_check(args):
               f"({per:.3g} per element), {_ends_text(scene)}{hint}")
     elif "rod" in d:
         print(f"  lattice: {lat['elements']} elements, ds = {lat['ds']:.6g} m")
+    if "rod" in d:
         print("  rod: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["rod"].items()))
         print(f"  initial shape: {d['initial_shape']}")
     else:

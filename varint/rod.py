@@ -160,7 +160,8 @@ class RodPart:
         self.nz = int(mask.sum())
         self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
         #: the inextensible, unshearable rod (docs/theory.md §9a, varint.rod_constraint): Gamma = chi imposed by
-        #: multipliers (half-level unknowns, ``ncomp`` per element) instead of the stretch-shear energy
+        #: multipliers (level unknowns of the step's first level, SHAKE; ``ncomp`` per element) instead of the
+        #: stretch-shear energy
         self.constrained = rod.constraint == "inextensible_unshearable"
         self.ncomp = 3 if self.dim == 3 else 2
         self.nlam = self.N * self.ncomp if self.constrained else 0

@@ -190,8 +190,9 @@ class RodConstraint:
     """The inextensible, unshearable rod (varint.rod_constraint), its constraint held at the levels (SHAKE,
     docs/theory.md §9a): the step's term is -h sum_e ds lambda_e^n . (Gamma_e(q_n) - chi), whose force acts at the
     known level n, and the step's constraint rows are -h ds (Gamma_e(q_{n+1}) - chi), the derivative in lambda^{n+1}
-    of the next step's term: Gamma = chi at every level, and no alternating mode about the constraint surface
-    (the midpoint constraint's, Gammabar = chi, which the flowing liquid pumped: docs/theory.md §12).
+    of the next step's term: Gamma = chi at every level to the solver tolerance.  (The earlier midpoint form,
+    Gammabar = chi, steps the same trajectory; its half-level multipliers were free to alternate, which never moved
+    the rod: docs/theory.md §9a.)
 
     Its Newton block: the multipliers' columns (the level-n force is linear in lambda and independent of q_{n+1})
     and the constraint rows, in the rod's chart (b, xi) as RodElements'.
