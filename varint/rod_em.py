@@ -1,0 +1,305 @@
+"""The energy-momentum step for the rod alone (``time.scheme = "energy-momentum"``; docs/theory.md §12a).
+
+The midpoint Lie-group step of §9 resonates with its unresolved shear-rotation, axial and torsional modes on stiff
+nonlinear motion (§12).  This step conserves the total energy to the solver tolerance and the linear and angular
+momenta to round-off at any step, which bounds the stiff amplitudes (the potential is coercive): the
+energy-momentum idea of Simo & Tarnow (1992) and Simo, Tarnow & Doblaré (1995), here in the director ("rotationless")
+form of Betsch & Steinmann (2002) and Romero & Armero (2002) with a discrete gradient (Gonzalez 1996) of the rod's
+own potential.
+
+Unknowns per node: r_j and the frame Lambda_j = [d_1 d_2 d_3] as three directors in R^3 (the configuration lives in
+R^{12(N+1)}, where rotations act linearly), with the six orthonormality constraints g = d_i.d_j - delta_ij held by
+multipliers.  The kinetic energy is exactly the rod's, 1/2 m |r'|^2 + 1/2 W.I W = 1/2 m |r'|^2 + 1/2 sum_i E_i |d_i'|^2
+with E_i = tr(I)/2 - I_i (the Euler tensor; for the rod's I = rho diag(2I, I, I): E = (0, rho I, rho I)).
+The potential is the rod's (§9) with the directors in place of Lambda:
+Gamma_e = 1/2 (D_a + D_b)^T (r_b - r_a)/ds and Omega_e = cay^-1(D_a^T D_b)/ds = (2/ds) a/c with
+a = axial(R - R^T), c = 1 + tr R, R = D_a^T D_b.  The step (h, levels 0 -> 1, midpoint quantities with a bar):
+
+    M (v_1 - v_0) = -h ( grad_d U(q_0, q_1) + G(q_bar)^T lambda ),   q_1 - q_0 = h (v_0 + v_1)/2,   g(q_1) = 0,
+
+grad_d U the strain-space discrete gradient: the stresses at the mean of the two levels' strains times a strain
+"B-matrix" that maps q_1 - q_0 exactly onto the strain changes (Gamma and R are bilinear, so their midpoint
+derivatives are exact; Omega = 2a/(c ds) uses a_1/c_1 - a_0/c_0 = (c_bar da - a_bar dc)/(c_0 c_1)).  Hence
+U(q_1) - U(q_0) = grad_d U . (q_1 - q_0) identically (for any q_0, q_1, not only orthonormal frames), g quadratic
+gives g(q_1) - g(q_0) = G(q_bar)(q_1 - q_0), and the kinetic energy changes by v_bar . M dv = -dU: energy conserved
+to the solver's residual.  Every piece is invariant under r -> Q r + c, D -> Q D for all Q in O(3) acting linearly,
+so the midpoint-evaluated gradients annihilate the rigid directions at q_bar: P and J = sum r x m v + d_i x E_i d_i'
+are conserved to round-off.
+
+Scope in this version: the rod alone, free ends, no gravity, loads, fluid, wall, constraint or periodic ends (the
+scene check refuses them in one line).  The default remains the midpoint scheme.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .errors import SolverError
+
+CHI = np.array([1.0, 0.0, 0.0])
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+NV = 18  # unknowns per node: r (3), D (9, row-major Lambda), lambda (6)
+
+
+def supports(model):
+    """None when the energy-momentum step covers ``model``, else a one-line reason (naming the key)."""
+    if model.tube is not None or getattr(model, "rod", None) is None:
+        return "time.scheme: 'energy-momentum' covers the rod alone ([rod] without [fluid]/[wall]) in this version"
+    rod = model.rod
+    sc = model.scene
+    if rod.constrained:
+        return "time.scheme: 'energy-momentum' does not cover rod.constraint in this version"
+    if not (sc.rod.ends.s0 == "free" and sc.rod.ends.sL == "free"):
+        return "time.scheme: 'energy-momentum' covers free rod ends only in this version (rod.ends)"
+    if np.any(rod.g) or np.any(rod.force) or np.any(rod.torque):
+        return "time.scheme: 'energy-momentum' covers a rod without gravity or tip loads in this version"
+    if rod.paper_measure:
+        return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
+    return None
+
+
+def _axial(S):
+    return np.stack([S[..., 2, 1] - S[..., 1, 2], S[..., 0, 2] - S[..., 2, 0], S[..., 1, 0] - S[..., 0, 1]], axis=-1)
+
+
+def _hat(a):
+    z = np.zeros_like(a[..., 0])
+    return np.stack([np.stack([z, -a[..., 2], a[..., 1]], -1), np.stack([a[..., 2], z, -a[..., 0]], -1),
+                     np.stack([-a[..., 1], a[..., 0], z], -1)], axis=-2)
+
+
+def _T(A):
+    return np.swapaxes(A, -1, -2)
+
+
+def strains(r, D, ds):
+    """Element strains of the director configuration (any D, orthonormal or not): Omega, Gamma, and a, c of
+    Omega = (2/ds) a/c."""
+    Da, Db = D[..., :-1, :, :], D[..., 1:, :, :]
+    dr = r[..., 1:, :] - r[..., :-1, :]
+    Ga = np.einsum("...ji,...j->...i", 0.5 * (Da + Db), dr) / ds
+    R = _T(Da) @ Db
+    a = _axial(R)
+    c = 1.0 + R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    return 2.0 * a / (c[..., None] * ds), Ga, a, c
+
+
+def potential(r, D, ds, Jd, Kd):
+    """U = sum_e ds (1/2 Omega.J Omega + 1/2 (Gamma - chi).K (Gamma - chi)) (docs/theory.md §9)."""
+    Om, Ga, _, _ = strains(r, D, ds)
+    dG = Ga - CHI
+    return ds * np.sum(0.5 * np.sum(Jd * Om * Om, -1) + 0.5 * np.sum(Kd * dG * dG, -1), -1)
+
+
+def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd):
+    """grad_d U(q_0, q_1) = (F_r (.., N+1, 3), F_D (.., N+1, 3, 3)) with
+    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a)."""
+    Om0, Ga0, a0, c0 = strains(r0, D0, ds)
+    Om1, Ga1, a1, c1 = strains(r1, D1, ds)
+    rb, Db = 0.5 * (r0 + r1), 0.5 * (D0 + D1)
+    n = Kd * (0.5 * (Ga0 + Ga1) - CHI)  # stress at the mean strain
+    m = Jd * 0.5 * (Om0 + Om1)
+    # stretch-shear: ds n . dGamma, dGamma = 1/2 (Db_a + Db_b)^T (dr_b - dr_a)/ds + 1/2 (dD_a + dD_b)^T (rb_b - rb_a)/ds
+    Fr = np.zeros(np.broadcast_shapes(r0.shape, r1.shape), dtype=np.result_type(r0, r1, D0, D1))
+    FD = np.zeros(Fr.shape[:-1] + (3, 3), dtype=Fr.dtype)
+    Dm = 0.5 * (Db[..., :-1, :, :] + Db[..., 1:, :, :])
+    fn = np.einsum("...ij,...j->...i", Dm, n)
+    Fr[..., 1:, :] += fn
+    Fr[..., :-1, :] -= fn
+    drb = rb[..., 1:, :] - rb[..., :-1, :]
+    G = 0.5 * drb[..., :, None] * n[..., None, :]
+    FD[..., :-1, :, :] += G
+    FD[..., 1:, :, :] += G
+    # bending-torsion: ds m . dOmega = alpha . da + beta dc, with R = D_a^T D_b bilinear
+    cc = c0 * c1
+    alpha = 2.0 * (0.5 * (c0 + c1))[..., None] * m / cc[..., None]
+    beta = -2.0 * np.sum(0.5 * (a0 + a1) * m, -1) / cc
+    Phi = _hat(alpha) + beta[..., None, None] * np.eye(3)  # d(alpha.a + beta c)/dR
+    FD[..., :-1, :, :] += Db[..., 1:, :, :] @ _T(Phi)
+    FD[..., 1:, :, :] += Db[..., :-1, :, :] @ Phi
+    return Fr, FD
+
+
+def director_masses(rod):
+    """Node masses m_j and director masses E_ji = w_j (tr I / 2 - I_i) of the rod's lumped kinetic metric."""
+    I = rod.section.inertia
+    return rod.node_mass.copy(), rod.w[:, None] * (0.5 * I.sum() - I)[None, :]
+
+
+class RodEMStep:
+    """Energy-momentum stepping of a free rod alone (docs/theory.md §12a); its own state (r, D, v, V)."""
+
+    def __init__(self, model, h, tol=1e-13, max_iter=40):
+        why = supports(model)
+        if why:
+            raise SolverError(why)
+        rod = model.rod
+        self.rod, self.h, self.tol, self.max_iter = rod, float(h), tol, max_iter
+        self.N, self.ds = rod.N, rod.ds
+        self.Jd, self.Kd = rod.section.J, rod.section.K
+        self.m, self.E = director_masses(rod)
+        self.r = rod.r0.copy()
+        self.D = rod.Lam0.copy()
+        self.v = rod.v0.copy()
+        W = rod.omega0  # body angular velocity: d_i' = Lambda (W x e_i)
+        self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
+        self.lam = np.zeros((self.N + 1, 6))
+        self.n = 0
+        self._lu = None
+        self._plan = None
+        self._prev = None
+        self.rate_refresh = 0.5
+        self.stats = dict(iterations=0, jacobians=0, residuals=0)
+
+    # -- the step's equations ---------------------------------------------------------------------------
+
+    def _unpack(self, z):
+        z = z.reshape(z.shape[:-1] + (self.N + 1, NV))
+        return z[..., :3], z[..., 3:12].reshape(z.shape[:-1] + (3, 3)), z[..., 12:]
+
+    def residual(self, z):
+        """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1, D_1, lambda) per node."""
+        h = self.h
+        r1, D1, lam = self._unpack(z)
+        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd)
+        Db = 0.5 * (self.D + D1)
+        S = np.stack([np.stack([2 * lam[..., 0], lam[..., 3], lam[..., 4]], -1),
+                      np.stack([lam[..., 3], 2 * lam[..., 1], lam[..., 5]], -1),
+                      np.stack([lam[..., 4], lam[..., 5], 2 * lam[..., 2]], -1)], -2)
+        Rr = (2.0 / h) * self.m[:, None] * (r1 - self.r - h * self.v) + h * Fr
+        RD = (2.0 / h) * self.E[:, None, :] * (D1 - self.D - h * self.V) + h * (FD + Db @ S)
+        C = _T(D1) @ D1
+        Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
+        out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
+        return out.reshape(out.shape[:-2] + (-1,))
+
+    def jacobian(self, z):
+        """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 54 batched residuals."""
+        n = (self.N + 1) * NV
+        if self._plan is None:
+            node = np.arange(n) // NV
+            comp = np.arange(n) % NV
+            rows, cols = [], []
+            for j in range(self.N + 1):
+                for k in range(max(0, j - 1), min(self.N, j + 1) + 1):
+                    rr, cc = np.meshgrid(np.arange(j * NV, (j + 1) * NV), np.arange(k * NV, (k + 1) * NV), indexing="ij")
+                    rows.append(rr.ravel())
+                    cols.append(cc.ravel())
+            rows, cols = np.concatenate(rows), np.concatenate(cols)
+            self._plan = (node, comp, rows, cols)
+        node, comp, rows, cols = self._plan
+        eps = 1e-30
+        P = np.zeros((3 * NV, n), dtype=complex)
+        for col in range(3):
+            for c in range(NV):
+                P[col * NV + c, (node % 3 == col) & (comp == c)] = 1j * eps
+        Rc = self.residual(z[None, :] + P).imag / eps  # (54, n)
+        self.stats["residuals"] += 54
+        # entry (row, col) comes from the batch of col's colour and component
+        b = (node[cols] % 3) * NV + comp[cols]
+        vals = Rc[b, rows]
+        return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
+
+    def _pack(self, r, D, lam):
+        return np.concatenate([r, D.reshape(-1, 9), lam], 1).ravel()
+
+    def body_angular_velocity(self):
+        """W_j from the massive directors' velocities: Lambda^T d_i' = W x e_i for i = 2, 3 (d_1 carries no inertia,
+        E_1 = 0, so its velocity is not a dynamical quantity)."""
+        A = _T(self.D) @ self.V
+        return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+
+    def _predict(self):
+        """The last step repeated (r_n + (r_n - r_{n-1}), D_n D_{n-1}^T D_n); the first step a rigid motion at the
+        initial velocities.  The level velocities are a poor guess at unresolved steps (the stiff modes flip sign
+        every step): repeating the last increment halves the predictor error on the hard cases."""
+        from .lie import cay
+
+        if self._prev is None:
+            return self._pack(self.r + self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()), self.lam)
+        r_, D_ = self._prev
+        return self._pack(2.0 * self.r - r_, self.D @ (_T(D_) @ self.D), self.lam)
+
+    def _solve(self, z, chord):
+        """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
+        than 1/2), or full Newton (``chord=False``: a fresh Jacobian every iteration, halved steps while the
+        residual is not finite).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
+        positions to L, directors) it stops when the next update no longer shrinks."""
+        sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
+        qmask = np.tile(np.arange(NV) < 12, self.N + 1)
+        last = np.inf
+        fresh = False
+        for it in range(1, self.max_iter + 1):
+            R = self.residual(z)
+            self.stats["residuals"] += 1
+            if not np.all(np.isfinite(R)):
+                raise SolverError(f"step {self.n + 1}: non-finite residual")
+            if self._lu is None or not chord:
+                try:
+                    self._lu = spla.splu(self.jacobian(z))
+                except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+                    self._lu = None
+                    raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
+                self.stats["jacobians"] += 1
+                fresh = True
+            dz = self._lu.solve(-R)
+            size = float(np.max(np.abs(dz[qmask]) / sc))
+            if not np.isfinite(size):
+                raise SolverError(f"step {self.n + 1}: singular Newton matrix")
+            if size >= last and last < 1e3 * self.tol:
+                return z, it  # round-off floor reached: the update no longer shrinks
+            if size > last and fresh:
+                raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
+            z = z + dz
+            if size < 1e-3 * self.tol:
+                return z, it
+            if chord and it > 1 and size > self.rate_refresh * last and not fresh and last >= self.tol:
+                self._lu = None  # slow contraction: refresh the Jacobian
+            fresh = False
+            last = size
+        if last < 1e3 * self.tol:
+            return z, self.max_iter
+        raise SolverError(f"step {self.n + 1}: Newton did not converge in {self.max_iter} iterations (update {last:.2e})")
+
+    def step(self):
+        """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (a rigid
+        motion at the level's velocities); on failure full Newton from the same predictor."""
+        h = self.h
+        try:
+            z, it = self._solve(self._predict(), chord=True)
+        except SolverError:
+            self._lu = None
+            self.stats["fallbacks"] = self.stats.get("fallbacks", 0) + 1
+            z, it = self._solve(self._predict(), chord=False)
+        r1, D1, lam = self._unpack(z)
+        self.v = 2.0 * (r1 - self.r) / h - self.v
+        self.V = 2.0 * (D1 - self.D) / h - self.V
+        self._prev = (self.r, self.D)
+        self.r, self.D, self.lam = r1.copy(), D1.copy(), lam.copy()
+        # d_1 has no inertia: its level velocity is set to the rigid one of the frame (it enters nothing)
+        W = self.body_angular_velocity()
+        self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
+        self.n += 1
+        self.stats["iterations"] += it
+        return it
+
+    # -- monitors ------------------------------------------------------------------------------------
+
+    def energy(self):
+        """The conserved total energy: 1/2 m |v|^2 + 1/2 E_i |d_i'|^2 + U."""
+        kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
+        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd))
+
+    def linear_momentum(self):
+        return (self.m[:, None] * self.v).sum(0)
+
+    def angular_momentum(self):
+        return (np.cross(self.r, self.m[:, None] * self.v).sum(0)
+                + np.cross(np.swapaxes(self.D, 1, 2), np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum((0, 1)))
+
+    def orthonormality(self):
+        return float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3))))
