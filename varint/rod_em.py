@@ -149,6 +149,7 @@ class RodEMStep:
         self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
         self.lam = np.zeros((self.N + 1, 6))
         self.n = 0
+        self.last_iterations = 0
         self._lu = None
         self._plan = None
         self._prev = None
@@ -224,12 +225,28 @@ class RodEMStep:
         r_, D_ = self._prev
         return self._pack(2.0 * self.r - r_, self.D @ (_T(D_) @ self.D), self.lam)
 
+    def _body_frames(self):
+        """T = blockdiag(D_n, D_n (x) I_3, I_6) per node: the unknowns' updates in the level's body frames
+        (dr = D_n db, dD = D_n dB).  Newton solves T^T J T du = -T^T R: that matrix does not rotate with the rod
+        (J(Q z) = Q J(z) Q^T for a rigid turn Q), so a factorisation is reused across steps of a spinning rod as the
+        midpoint's body-frame unknowns are (docs/theory.md §9)."""
+        D = self.D
+        blk = np.zeros((self.N + 1, NV, NV))
+        blk[:, :3, :3] = D
+        for a in range(3):
+            for b in range(3):
+                blk[:, 3 + 3 * a: 6 + 3 * a, 3 + 3 * b: 6 + 3 * b] = D[:, a, b, None, None] * np.eye(3)
+        blk[:, 12:, 12:] = np.eye(6)
+        n = self.N + 1
+        return sp.bsr_matrix((blk, np.arange(n), np.arange(n + 1)), shape=(n * NV, n * NV)).tocsr()
+
     def _solve(self, z, chord):
         """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
         than 1/2), or full Newton (``chord=False``: a fresh Jacobian every iteration, halved steps while the
         residual is not finite).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
         positions to L, directors) it stops when the next update no longer shrinks."""
         sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
+        T = self._body_frames()
         qmask = np.tile(np.arange(NV) < 12, self.N + 1)
         last = np.inf
         fresh = False
@@ -240,13 +257,13 @@ class RodEMStep:
                 raise SolverError(f"step {self.n + 1}: non-finite residual")
             if self._lu is None or not chord:
                 try:
-                    self._lu = spla.splu(self.jacobian(z))
+                    self._lu = spla.splu((T.T @ self.jacobian(z) @ T).tocsc())
                 except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
                     self._lu = None
                     raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
                 self.stats["jacobians"] += 1
                 fresh = True
-            dz = self._lu.solve(-R)
+            dz = T @ self._lu.solve(T.T @ -R)
             size = float(np.max(np.abs(dz[qmask]) / sc))
             if not np.isfinite(size):
                 raise SolverError(f"step {self.n + 1}: singular Newton matrix")
@@ -286,6 +303,29 @@ class RodEMStep:
         self.n += 1
         self.stats["iterations"] += it
         return it
+
+    def step_state(self, st, model):
+        """One step, returned as the stepper's :class:`varint.stepper.State` (q: frames and positions; p: the node
+        momenta m v and the body angular momenta Pi = D^T sum_i d_i x E_i d_i')."""
+        from .rod import pack_level
+        from .stepper import State
+
+        if st.n != self.n:
+            raise SolverError("time.scheme: 'energy-momentum' cannot restart from a checkpoint in this version")
+        self.last_iterations = self.step()
+        q, p = st.q.copy(), st.p.copy()
+        q[model.rod_q] = pack_level(self.D, self.r)
+        Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),
+                                                      np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum(1))
+        p[model.rod_p] = np.concatenate([(self.m[:, None] * self.v).ravel(), Pi.ravel()])
+        return State(self.n, self.n * self.h, q, p, st.lam, st.v, st.q.copy(), None)
+
+    def monitors(self):
+        """The conserved energy (kinetic in the director velocities) and momenta, for the stepper's monitors."""
+        kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
+        E = self.energy()
+        return {"energy": E, "kinetic_energy": float(kin), "linear_momentum": self.linear_momentum(),
+                "angular_momentum": self.angular_momentum(), "frame_orthogonality": self.orthonormality()}
 
     # -- monitors ------------------------------------------------------------------------------------
 
