@@ -154,6 +154,8 @@ class RodEMStep:
         self._plan = None
         self._prev = None
         self.rate_refresh = 0.5
+        #: the compiled residual (``_k_residual``) for the iterations and the Jacobian; False: the numpy reference
+        self.compiled = True
         self.stats = dict(iterations=0, jacobians=0, residuals=0)
 
     # -- the step's equations ---------------------------------------------------------------------------
@@ -178,6 +180,15 @@ class RodEMStep:
         out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
         return out.reshape(out.shape[:-2] + (-1,))
 
+    def _kernel(self, z, out):
+        _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, out)
+
+    def residual_compiled(self, z):
+        """:meth:`residual` of one real z by the compiled kernel ``_k_residual`` (tested equal)."""
+        out = np.empty((1, z.size))
+        self._kernel(np.ascontiguousarray(z, dtype=np.float64)[None, :], out)
+        return out[0]
+
     def jacobian(self, z):
         """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 54 batched residuals."""
         n = (self.N + 1) * NV
@@ -198,7 +209,13 @@ class RodEMStep:
         for col in range(3):
             for c in range(NV):
                 P[col * NV + c, (node % 3 == col) & (comp == c)] = 1j * eps
-        Rc = self.residual(z[None, :] + P).imag / eps  # (54, n)
+        zc = z[None, :] + P
+        if self.compiled:
+            Rc = np.empty_like(zc)
+            self._kernel(zc, Rc)
+            Rc = Rc.imag / eps
+        else:
+            Rc = self.residual(zc).imag / eps  # (54, n)
         self.stats["residuals"] += 54
         # entry (row, col) comes from the batch of col's colour and component
         b = (node[cols] % 3) * NV + comp[cols]
@@ -251,7 +268,7 @@ class RodEMStep:
         last = np.inf
         fresh = False
         for it in range(1, self.max_iter + 1):
-            R = self.residual(z)
+            R = self.residual_compiled(z) if self.compiled else self.residual(z)
             self.stats["residuals"] += 1
             if not np.all(np.isfinite(R)):
                 raise SolverError(f"step {self.n + 1}: non-finite residual")
@@ -343,3 +360,110 @@ class RodEMStep:
 
     def orthonormality(self):
         return float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3))))
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# compiled residual (the same equations as RodEMStep.residual, which stays the readable reference; tested equal).
+# One kernel serves real arguments (chord iterations) and complex ones (the complex-step Jacobian's batch).
+
+from numba import njit  # noqa: E402
+
+
+@njit(cache=True, error_model="numpy")
+def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
+    B, n = z.shape
+    N1 = r0.shape[0]
+    Da = np.empty((3, 3), dtype=z.dtype)
+    for b in range(B):
+        zb = z[b]
+        ob = out[b]
+        for j in range(N1):
+            o = 18 * j
+            for k in range(3):
+                ob[o + k] = (2.0 / h) * m[j] * (zb[o + k] - r0[j, k] - h * v0[j, k])
+            l0, l1, l2, l3, l4, l5 = zb[o + 12], zb[o + 13], zb[o + 14], zb[o + 15], zb[o + 16], zb[o + 17]
+            for i in range(3):
+                # constraint force (Db S)_ik, S = [[2l0, l3, l4], [l3, 2l1, l5], [l4, l5, 2l2]]
+                d0 = 0.5 * (D0[j, i, 0] + zb[o + 3 + 3 * i])
+                d1 = 0.5 * (D0[j, i, 1] + zb[o + 4 + 3 * i])
+                d2 = 0.5 * (D0[j, i, 2] + zb[o + 5 + 3 * i])
+                f0 = d0 * 2.0 * l0 + d1 * l3 + d2 * l4
+                f1 = d0 * l3 + d1 * 2.0 * l1 + d2 * l5
+                f2 = d0 * l4 + d1 * l5 + d2 * 2.0 * l2
+                ob[o + 3 + 3 * i] = (2.0 / h) * E[j, 0] * (zb[o + 3 + 3 * i] - D0[j, i, 0] - h * V0[j, i, 0]) + h * f0
+                ob[o + 4 + 3 * i] = (2.0 / h) * E[j, 1] * (zb[o + 4 + 3 * i] - D0[j, i, 1] - h * V0[j, i, 1]) + h * f1
+                ob[o + 5 + 3 * i] = (2.0 / h) * E[j, 2] * (zb[o + 5 + 3 * i] - D0[j, i, 2] - h * V0[j, i, 2]) + h * f2
+            # constraints D1^T D1 - I: (00, 11, 22, 01, 02, 12)
+            for p in range(6):
+                if p < 3:
+                    a1, a2 = p, p
+                elif p == 3:
+                    a1, a2 = 0, 1
+                elif p == 4:
+                    a1, a2 = 0, 2
+                else:
+                    a1, a2 = 1, 2
+                s = zb[o + 3 + a1] * zb[o + 3 + a2] + zb[o + 6 + a1] * zb[o + 6 + a2] + zb[o + 9 + a1] * zb[o + 9 + a2]
+                ob[o + 12 + p] = s - (1.0 if a1 == a2 else 0.0)
+        for e in range(N1 - 1):
+            oa, obb = 18 * e, 18 * (e + 1)
+            # level strains: Gamma, a, c at both levels
+            G0 = np.zeros(3, dtype=z.dtype)
+            G1 = np.zeros(3, dtype=z.dtype)
+            A0 = np.zeros(3, dtype=z.dtype)
+            A1 = np.zeros(3, dtype=z.dtype)
+            R0 = np.zeros((3, 3), dtype=z.dtype)
+            R1 = np.zeros((3, 3), dtype=z.dtype)
+            for i in range(3):
+                for k in range(3):
+                    G0[i] += 0.5 * (D0[e, k, i] + D0[e + 1, k, i]) * (r0[e + 1, k] - r0[e, k]) / ds
+                    G1[i] += 0.5 * (zb[oa + 3 + 3 * k + i] + zb[obb + 3 + 3 * k + i]) * (zb[obb + k] - zb[oa + k]) / ds
+                    for l in range(3):
+                        R0[i, k] += D0[e, l, i] * D0[e + 1, l, k]
+                        R1[i, k] += zb[oa + 3 + 3 * l + i] * zb[obb + 3 + 3 * l + k]
+            A0[0], A0[1], A0[2] = R0[2, 1] - R0[1, 2], R0[0, 2] - R0[2, 0], R0[1, 0] - R0[0, 1]
+            A1[0], A1[1], A1[2] = R1[2, 1] - R1[1, 2], R1[0, 2] - R1[2, 0], R1[1, 0] - R1[0, 1]
+            c0 = 1.0 + R0[0, 0] + R0[1, 1] + R0[2, 2]
+            c1 = 1.0 + R1[0, 0] + R1[1, 1] + R1[2, 2]
+            cc = c0 * c1
+            nn = np.empty(3, dtype=z.dtype)
+            mm = np.empty(3, dtype=z.dtype)
+            for i in range(3):
+                nn[i] = Kd[i] * (0.5 * (G0[i] + G1[i]) - (1.0 if i == 0 else 0.0))
+                mm[i] = Jd[i] * 0.5 * (2.0 * A0[i] / (c0 * ds) + 2.0 * A1[i] / (c1 * ds))
+            beta = 0.0 * c0
+            for i in range(3):
+                beta += -2.0 * 0.5 * (A0[i] + A1[i]) * mm[i] / cc
+            al0 = 2.0 * 0.5 * (c0 + c1) * mm[0] / cc
+            al1 = 2.0 * 0.5 * (c0 + c1) * mm[1] / cc
+            al2 = 2.0 * 0.5 * (c0 + c1) * mm[2] / cc
+            # Phi = hat(alpha) + beta I
+            P00, P01, P02 = beta, -al2, al1
+            P10, P11, P12 = al2, beta, -al0
+            P20, P21, P22 = -al1, al0, beta
+            for k in range(3):  # spatial row k
+                Dak = np.empty(3, dtype=z.dtype)
+                Dbk = np.empty(3, dtype=z.dtype)
+                for i in range(3):
+                    Dak[i] = 0.5 * (D0[e, k, i] + zb[oa + 3 + 3 * k + i])
+                    Dbk[i] = 0.5 * (D0[e + 1, k, i] + zb[obb + 3 + 3 * k + i])
+                fn = 0.0 * c0
+                for i in range(3):
+                    fn += 0.5 * (Dak[i] + Dbk[i]) * nn[i]
+                ob[obb + k] += h * fn
+                ob[oa + k] -= h * fn
+                drb = 0.5 * (r0[e + 1, k] + zb[obb + k]) - 0.5 * (r0[e, k] + zb[oa + k])
+                # F_Da[k, i] += 1/2 drb_k n_i + (Db_b Phi^T)[k, i];  F_Db[k, i] += 1/2 drb_k n_i + (Db_a Phi)[k, i]
+                for i in range(3):
+                    g = 0.5 * drb * nn[i]
+                    if i == 0:
+                        pa = Dbk[0] * P00 + Dbk[1] * P01 + Dbk[2] * P02
+                        pb = Dak[0] * P00 + Dak[1] * P10 + Dak[2] * P20
+                    elif i == 1:
+                        pa = Dbk[0] * P10 + Dbk[1] * P11 + Dbk[2] * P12
+                        pb = Dak[0] * P01 + Dak[1] * P11 + Dak[2] * P21
+                    else:
+                        pa = Dbk[0] * P20 + Dbk[1] * P21 + Dbk[2] * P22
+                        pb = Dak[0] * P02 + Dak[1] * P12 + Dak[2] * P22
+                    ob[oa + 3 + 3 * k + i] += h * (g + pa)
+                    ob[obb + 3 + 3 * k + i] += h * (g + pb)
