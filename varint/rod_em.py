@@ -149,7 +149,7 @@ class RodEMStep:
         self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
         self.lam = np.zeros((self.N + 1, 6))
         self.n = 0
-        self.last_iterations = 0
+        self.last = dict(iterations=0, jacobians=0, fallback=0)
         self._lu = None
         self._plan = None
         self._prev = None
@@ -303,11 +303,14 @@ class RodEMStep:
         """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (a rigid
         motion at the level's velocities); on failure full Newton from the same predictor."""
         h = self.h
+        jac0 = self.stats["jacobians"]
+        fallback = 0
         try:
             z, it = self._solve(self._predict(), chord=True)
         except SolverError:
             self._lu = None
             self.stats["fallbacks"] = self.stats.get("fallbacks", 0) + 1
+            fallback = 1
             z, it = self._solve(self._predict(), chord=False)
         r1, D1, lam = self._unpack(z)
         self.v = 2.0 * (r1 - self.r) / h - self.v
@@ -319,6 +322,7 @@ class RodEMStep:
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
         self.n += 1
         self.stats["iterations"] += it
+        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
         return it
 
     def step_state(self, st, model):
@@ -329,7 +333,7 @@ class RodEMStep:
 
         if st.n != self.n:
             raise SolverError("time.scheme: 'energy-momentum' cannot restart from a checkpoint in this version")
-        self.last_iterations = self.step()
+        self.step()
         q, p = st.q.copy(), st.p.copy()
         q[model.rod_q] = pack_level(self.D, self.r)
         Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),

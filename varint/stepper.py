@@ -484,7 +484,11 @@ class Simulation(OpenEndsStepping):
             return self._fast_step()
         if self._em is not None:
             self.state = self._em.step_state(self.state, self.model)
-            self.stats.iterations = self._em.last_iterations
+            s, last = self.stats, self._em.last
+            s.iterations, s.n_jacobian = last["iterations"], last["jacobians"]
+            s.total_iterations += last["iterations"]
+            s.total_jacobians += last["jacobians"]
+            s.fallbacks += last["fallback"]
             return self.state
         st = self.state
         m = self.model
