@@ -5,7 +5,7 @@ midpoint rod blows up at h = 4-5 ms (and 8 ms for some); the energy-momentum ste
 energy to the solver tolerance and the momenta to round-off.  For each case and step: max |E/E0 - 1|, the largest
 changes of P (times L, relative to |J0|) and of J (relative to |J0|), the orthonormality defect of the frames,
 Newton iterations per step and wall time per step; with --midpoint also the midpoint step's wall time per step on the
-same case (as far as it runs).
+same case in 3D (as far as it runs, at most 300 steps).
 
 Run: python scripts/rod_em_hard_cases.py [--steps 2000] [--steps-list 0.004,0.005,0.008] [--midpoint]
      python scripts/rod_em_hard_cases.py --steps 100000 --steps-list 0.005 --cases 0   (the 10^5-step run)
@@ -86,7 +86,7 @@ def main():
             line = (f"| {name} | {h * 1e3:.0f} | {r['steps']} | {r['E']:.1e} | {r['P']:.1e} | {r['J']:.1e} | {r['orth']:.1e} "
                     f"| {r['its']:.1f} | {r['jacs']:.2f} | {1e3 * r['wall'] / max(r['steps'], 1):.1f} | {r['outcome']} |")
             if args.midpoint:
-                line += f" {1e3 * run_midpoint(make(h=h, **CASES[names[i]]), h, min(args.steps, 300)):.2f} |"
+                line += f" {1e3 * run_midpoint(make(h=h, **kw), h, min(args.steps, 300)):.2f} |"
             print(line, flush=True)
 
 

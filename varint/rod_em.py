@@ -231,14 +231,20 @@ class RodEMStep:
         A = _T(self.D) @ self.V
         return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
 
+    def _predict_rigid(self):
+        from .lie import cay
+
+        return self._pack(self.r + self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()), self.lam)
+
+    def _predict_rest(self):
+        return self._pack(self.r, self.D, self.lam)
+
     def _predict(self):
         """The last step repeated (r_n + (r_n - r_{n-1}), D_n D_{n-1}^T D_n); the first step a rigid motion at the
         initial velocities.  The level velocities are a poor guess at unresolved steps (the stiff modes flip sign
         every step): repeating the last increment halves the predictor error on the hard cases."""
-        from .lie import cay
-
         if self._prev is None:
-            return self._pack(self.r + self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()), self.lam)
+            return self._predict_rigid()
         r_, D_ = self._prev
         return self._pack(2.0 * self.r - r_, self.D @ (_T(D_) @ self.D), self.lam)
 
@@ -259,8 +265,8 @@ class RodEMStep:
 
     def _solve(self, z, chord):
         """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
-        than 1/2), or full Newton (``chord=False``: a fresh Jacobian every iteration, halved steps while the
-        residual is not finite).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
+        than 1/2; a fresh one that does not contract ends the attempt), or full Newton (``chord=False``: a fresh
+        Jacobian every iteration; the update may grow before it converges).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
         positions to L, directors) it stops when the next update no longer shrinks."""
         sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
         T = self._body_frames()
@@ -286,7 +292,7 @@ class RodEMStep:
                 raise SolverError(f"step {self.n + 1}: singular Newton matrix")
             if size >= last and last < 1e3 * self.tol:
                 return z, it  # round-off floor reached: the update no longer shrinks
-            if size > last and fresh:
+            if size > last and fresh and chord:
                 raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
             z = z + dz
             if size < 1e-3 * self.tol:
@@ -307,11 +313,20 @@ class RodEMStep:
         fallback = 0
         try:
             z, it = self._solve(self._predict(), chord=True)
-        except SolverError:
-            self._lu = None
+        except SolverError as exc:
+            # full Newton from the same predictor, then from a rigid motion at the level's velocities, then from rest
             self.stats["fallbacks"] = self.stats.get("fallbacks", 0) + 1
             fallback = 1
-            z, it = self._solve(self._predict(), chord=False)
+            for start in (self._predict, self._predict_rigid, self._predict_rest):
+                self._lu = None
+                try:
+                    z, it = self._solve(start(), chord=False)
+                    break
+                except SolverError as e:
+                    exc = e
+            else:
+                self._lu = None
+                raise exc
         r1, D1, lam = self._unpack(z)
         self.v = 2.0 * (r1 - self.r) / h - self.v
         self.V = 2.0 * (D1 - self.D) / h - self.V
