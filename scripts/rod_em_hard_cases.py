@@ -8,7 +8,8 @@ Newton iterations per step and wall time per step; with --midpoint also the midp
 same case in 3D (as far as it runs, at most 300 steps).
 
 Run: python scripts/rod_em_hard_cases.py [--steps 2000] [--steps-list 0.004,0.005,0.008] [--midpoint]
-     python scripts/rod_em_hard_cases.py --steps 100000 --steps-list 0.005 --cases 0   (the 10^5-step run)
+     python scripts/rod_em_hard_cases.py --steps 100000 --steps-list 0.005 --cases 0 --every 100   (the 10^5-step run)
+     python scripts/rod_em_hard_cases.py --bench 200 --steps-list 0.004   (cost per step against the midpoint)
 """
 
 from __future__ import annotations
@@ -64,6 +65,34 @@ def run_midpoint(model, h, steps):
     return (time.perf_counter() - t0) / max(n, 1)
 
 
+def bench(args):
+    """ms per step of the energy-momentum and the midpoint step on the same 3D case and step (the first STEPS steps,
+    best of three alternating repetitions: the machine is shared)."""
+    hs = [float(x) for x in args.steps_list.split(",")]
+    names = list(CASES)
+    print("| case | h [ms] | energy-momentum ms/step | its/step | midpoint ms/step | its/step | ratio |")
+    print("|---|---|---|---|---|---|---|")
+    for name in names:
+        kw = dict(CASES[name], dim=3)
+        for h in hs:
+            te, tm = [], []
+            for _ in range(3):
+                s = RodEMStep(make(h=h, **kw), h)
+                t0 = time.perf_counter()
+                for _ in range(args.bench):
+                    s.step()
+                te.append((time.perf_counter() - t0) / args.bench)
+                sim = Simulation(make(h=h, **kw), h=h)
+                t0 = time.perf_counter()
+                its = 0
+                for _ in range(args.bench):
+                    sim.step()
+                    its += sim.stats.iterations
+                tm.append((time.perf_counter() - t0) / args.bench)
+            print(f"| {name} | {h * 1e3:g} | {1e3 * min(te):.2f} | {s.stats['iterations'] / args.bench:.1f} | "
+                  f"{1e3 * min(tm):.2f} | {its / args.bench:.1f} | {min(te) / min(tm):.0f} |", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=2000)
@@ -71,7 +100,11 @@ def main():
     ap.add_argument("--cases", default=None, help="comma-separated case indices (default: all four)")
     ap.add_argument("--every", type=int, default=1, help="monitor every this many steps")
     ap.add_argument("--midpoint", action="store_true", help="also time the midpoint step (ms per step)")
+    ap.add_argument("--bench", type=int, default=0, metavar="STEPS",
+                    help="only time STEPS steps of each scheme on each case (3D, same h), interleaved, and print the ratio")
     args = ap.parse_args()
+    if args.bench:
+        return bench(args)
     hs = [float(x) for x in args.steps_list.split(",")]
     names = list(CASES)
     idx = range(len(names)) if args.cases is None else [int(i) for i in args.cases.split(",")]
