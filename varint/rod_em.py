@@ -26,7 +26,8 @@ to the solver's residual.  Every piece is invariant under r -> Q r + c, D -> Q D
 so the midpoint-evaluated gradients annihilate the rigid directions at q_bar: P and J = sum r x m v + d_i x E_i d_i'
 are conserved to round-off.
 
-Scope in this version: the rod alone, free ends, no gravity, loads, fluid, wall, constraint or periodic ends (the
+Scope in this version: the rod alone, free, pinned or clamped ends, gravity and a dead tip force (potentials linear
+in r: their discrete gradient is exact); no tip torque, fluid, wall, constraint, paper measure or periodic ends (the
 scene check refuses them in one line).  The default remains the midpoint scheme.
 """
 
@@ -53,10 +54,10 @@ def supports(model):
     sc = model.scene
     if rod.constrained:
         return "time.scheme: 'energy-momentum' does not cover rod.constraint in this version"
-    if not (sc.rod.ends.s0 == "free" and sc.rod.ends.sL == "free"):
-        return "time.scheme: 'energy-momentum' covers free rod ends only in this version (rod.ends)"
-    if np.any(rod.g) or np.any(rod.force) or np.any(rod.torque):
-        return "time.scheme: 'energy-momentum' covers a rod without gravity or tip loads in this version"
+    if rod.periodic:
+        return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
+    if np.any(rod.torque):
+        return "time.scheme: 'energy-momentum' does not cover a tip torque (rod.load.torque) in this version"
     if rod.paper_measure:
         return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
     return None
@@ -148,6 +149,19 @@ class RodEMStep:
         W = rod.omega0  # body angular velocity: d_i' = Lambda (W x e_i)
         self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
         self.lam = np.zeros((self.N + 1, 6))
+        # conservative loads, linear in r (their discrete gradient is exact): gravity on the lumped masses, the dead
+        # tip force; U_ext = -sum f_j . r_j
+        self.fext = self.m[:, None] * rod.g[None, :]
+        self.fext[-1] += rod.force
+        # supports: a pinned node keeps r (its rows become r_1 - r_0 = 0), a clamped one also its directors and its
+        # multipliers (its orthonormality then holds by itself)
+        self.fixed = np.zeros((self.N + 1, NV), dtype=bool)
+        for node, kind in ((0, model.scene.rod.ends.s0), (self.N, model.scene.rod.ends.sL)):
+            if kind in ("pinned", "clamped"):
+                self.fixed[node, :3] = True
+            if kind == "clamped":
+                self.fixed[node, 3:] = True
+        self.fixed = self.fixed.ravel()
         self.n = 0
         self.last = dict(iterations=0, jacobians=0, fallback=0)
         self._lu = None
@@ -178,10 +192,22 @@ class RodEMStep:
         C = _T(D1) @ D1
         Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
         out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
-        return out.reshape(out.shape[:-2] + (-1,))
+        out = out.reshape(out.shape[:-2] + (-1,))
+        return self._loads_and_supports(z, out)
+
+    def _loads_and_supports(self, z, out):
+        """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by z - z_level."""
+        if np.any(self.fext):
+            o = out.reshape(out.shape[:-1] + (self.N + 1, NV))
+            o[..., :3] -= self.h * self.fext
+        if np.any(self.fixed):
+            zl = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))
+            out[..., self.fixed] = z[..., self.fixed] - zl[self.fixed]
+        return out
 
     def _kernel(self, z, out):
         _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, out)
+        self._loads_and_supports(z, out)
 
     def residual_compiled(self, z):
         """:meth:`residual` of one real z by the compiled kernel ``_k_residual`` (tested equal)."""
@@ -327,6 +353,8 @@ class RodEMStep:
             else:
                 self._lu = None
                 raise exc
+        if np.any(self.fixed):  # held unknowns exactly at the level (Newton leaves them within round-off of it)
+            z[self.fixed] = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))[self.fixed]
         r1, D1, lam = self._unpack(z)
         self.v = 2.0 * (r1 - self.r) / h - self.v
         self.V = 2.0 * (D1 - self.D) / h - self.V
@@ -368,7 +396,7 @@ class RodEMStep:
     def energy(self):
         """The conserved total energy: 1/2 m |v|^2 + 1/2 E_i |d_i'|^2 + U."""
         kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
-        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd))
+        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd) - np.sum(self.fext * self.r))
 
     def linear_momentum(self):
         return (self.m[:, None] * self.v).sum(0)

@@ -175,7 +175,7 @@ SCHEMA = MappingProxyType({
         _pos("step", "s", "time step h"),
         _pos("end", "s", "final time"),
         Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': the rod "
-            "alone (free, unloaded) with energy and momenta conserved at any step (docs/theory.md §12a)",
+            "alone (no tip torque) with energy and momenta conserved at any step (docs/theory.md §12a)",
             choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
@@ -595,10 +595,10 @@ class _Validator:
                 self.bad("time.scheme", "'energy-momentum' covers the rod alone (no [fluid] or [wall]) in this version")
             elif rod.constraint != "none":
                 self.bad("time.scheme", "'energy-momentum' does not cover rod.constraint in this version")
-            elif not (rod.ends.s0 == "free" and rod.ends.sL == "free"):
-                self.bad("time.scheme", "'energy-momentum' covers free rod ends only in this version (rod.ends)")
-            elif any(sc.environment.gravity) or any((rod.load or {}).get("force") or ()) or any((rod.load or {}).get("torque") or ()):
-                self.bad("time.scheme", "'energy-momentum' covers a rod without gravity or tip loads in this version")
+            elif rod.ends.s0 == "periodic":
+                self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
+            elif any((rod.load or {}).get("torque") or ()):
+                self.bad("time.scheme", "'energy-momentum' does not cover a tip torque (rod.load.torque) in this version")
             elif rod.measure == "paper":
                 self.bad("time.scheme", "'energy-momentum' needs rod.measure = 'reference'")
         if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None
