@@ -30,7 +30,7 @@ from varint.errors import SolverError  # noqa: E402
 from varint.rod_em import RodEMStep  # noqa: E402
 
 
-def run_em(model, h, steps, every=1):
+def run_em(model, h, steps, every=1, progress=0):
     s = RodEMStep(model, h)
     E0, P0, J0 = s.energy(), s.linear_momentum(), s.angular_momentum()
     scale = np.linalg.norm(J0)
@@ -48,6 +48,9 @@ def run_em(model, h, steps, every=1):
             dP = max(dP, float(np.max(np.abs(s.linear_momentum() - P0))) * model.rod.L / scale)
             dJ = max(dJ, float(np.max(np.abs(s.angular_momentum() - J0))) / scale)
             orth = max(orth, s.orthonormality())
+        if progress and (n + 1) % progress == 0:
+            print(f"  step {n + 1}: max abs(E/E0-1) {worst:.1e}, dP L/abs(J0) {dP:.1e}, dJ/abs(J0) {dJ:.1e}, "
+                  f"{1e3 * (time.perf_counter() - t0) / (n + 1):.1f} ms/step", flush=True)
     wall = time.perf_counter() - t0
     return dict(E=worst, P=dP, J=dJ, orth=orth, outcome=outcome, wall=wall, steps=s.n,
                 its=s.stats["iterations"] / max(s.n, 1), jacs=s.stats["jacobians"] / max(s.n, 1))
@@ -99,6 +102,7 @@ def main():
     ap.add_argument("--steps-list", default="0.004,0.005,0.008")
     ap.add_argument("--cases", default=None, help="comma-separated case indices (default: all four)")
     ap.add_argument("--every", type=int, default=1, help="monitor every this many steps")
+    ap.add_argument("--progress", type=int, default=0, help="print the maxima so far every this many steps")
     ap.add_argument("--midpoint", action="store_true", help="also time the midpoint step (ms per step)")
     ap.add_argument("--bench", type=int, default=0, metavar="STEPS",
                     help="only time STEPS steps of each scheme on each case (3D, same h), interleaved, and print the ratio")
@@ -115,7 +119,7 @@ def main():
         name, kw = names[i], dict(CASES[names[i]])
         kw["dim"] = 3  # the director step is three-dimensional; the planar cases stay planar
         for h in hs:
-            r = run_em(make(h=h, **kw), h, args.steps, args.every)
+            r = run_em(make(h=h, **kw), h, args.steps, args.every, args.progress)
             line = (f"| {name} | {h * 1e3:.0f} | {r['steps']} | {r['E']:.1e} | {r['P']:.1e} | {r['J']:.1e} | {r['orth']:.1e} "
                     f"| {r['its']:.1f} | {r['jacs']:.2f} | {1e3 * r['wall'] / max(r['steps'], 1):.1f} | {r['outcome']} |")
             if args.midpoint:
