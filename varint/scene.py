@@ -174,7 +174,9 @@ SCHEMA = MappingProxyType({
     "time": (
         _pos("step", "s", "time step h"),
         _pos("end", "s", "final time"),
-        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action", choices=("midpoint", "trapezoidal")),
+        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': the rod "
+            "alone (no tip torque) with energy and momenta conserved at any step (docs/theory.md §12a)",
+            choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
     ),
@@ -458,6 +460,8 @@ class _Validator:
             self.bad("(scene)", "no effects: add a [rod], [fluid] and/or [wall] section")
         if sc.rod is not None:
             self.rod_checks(sc)
+        elif sc.time.scheme == "energy-momentum":
+            self.bad("time.scheme", "'energy-momentum' is for a [rod] (alone) in this version")
         if sc.tube.area_table is not None:
             self.check_area_table(sc.tube.area_table, L)
             if sc.wall is not None:
@@ -584,8 +588,19 @@ class _Validator:
             self.bad("tube.area_table", "not available with a [rod] (the coupled tube has a uniform rigid radius or a [wall])")
         if sc.initial is not None and sc.initial.traveling_shock is not None:
             self.bad("initial.traveling_shock", "needs a straight fixed tube: not available with a [rod]")
-        if sc.time.scheme != "midpoint":
-            self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme only; use 'midpoint'")
+        if sc.time.scheme == "trapezoidal":
+            self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme or 'energy-momentum'; not 'trapezoidal'")
+        if sc.time.scheme == "energy-momentum":  # varint/rod_em.py, docs/theory.md §12a: what this version covers
+            if sc.fluid is not None or sc.wall is not None:
+                self.bad("time.scheme", "'energy-momentum' covers the rod alone (no [fluid] or [wall]) in this version")
+            elif rod.constraint != "none":
+                self.bad("time.scheme", "'energy-momentum' does not cover rod.constraint in this version")
+            elif rod.ends.s0 == "periodic":
+                self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
+            elif any((rod.load or {}).get("torque") or ()):
+                self.bad("time.scheme", "'energy-momentum' does not cover a tip torque (rod.load.torque) in this version")
+            elif rod.measure == "paper":
+                self.bad("time.scheme", "'energy-momentum' needs rod.measure = 'reference'")
         if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None
                 and sc.fluid.model == "incompressible" and sc.fluid.ends.s0 != "inflow"):
             # (open ends let the liquid through: the inextensible pipe conveying liquid of Paidoussis, theory §13.1)

@@ -272,6 +272,14 @@ class Simulation(OpenEndsStepping):
         self.model = model
         self._built_version = None  # open ends: the lattice version the step was built for
         self.h = float(h if h is not None else tcfg.step)
+        #: the energy-momentum step of the rod alone (varint/rod_em.py, docs/theory.md §12a); the Step below then only
+        #: lays out the state and the monitors
+        self._em = None
+        if (scheme or tcfg.scheme) == "energy-momentum":
+            from .rod_em import RodEMStep
+
+            self._em = RodEMStep(model, self.h, tol=min(tcfg.newton_tol, 1e-13) if tol is None else tol)
+            scheme = "midpoint"
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
@@ -291,7 +299,7 @@ class Simulation(OpenEndsStepping):
         # the rod alone steps through one compiled routine (varint/rod_step_fast.py, docs/theory.md §9 "The fast rod
         # step"): the same discrete equations, 4-15x cheaper per step; everything else through Step below
         self._fast = None
-        if self.scheme.name == "midpoint" and not self.open:
+        if self.scheme.name == "midpoint" and not self.open and self._em is None:
             from .rod_step_fast import FastRodStep, supports
 
             if supports(model) is None:
@@ -474,6 +482,14 @@ class Simulation(OpenEndsStepping):
     def step(self):
         if self._fast is not None:
             return self._fast_step()
+        if self._em is not None:
+            self.state = self._em.step_state(self.state, self.model)
+            s, last = self.stats, self._em.last
+            s.iterations, s.n_jacobian = last["iterations"], last["jacobians"]
+            s.total_iterations += last["iterations"]
+            s.total_jacobians += last["jacobians"]
+            s.fallbacks += last["fallback"]
+            return self.state
         st = self.state
         m = self.model
         n1 = st.n + 1
@@ -631,6 +647,8 @@ class Simulation(OpenEndsStepping):
 
             out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
         out["newton_iterations"] = self.stats.iterations
+        if self._em is not None:  # the energy-momentum step's own conserved energy and momenta (varint/rod_em.py)
+            out.update(self._em.monitors())
         return out
 
     def _tangent_momenta(self, Lam, r, p, Pi):

@@ -1,0 +1,516 @@
+"""The energy-momentum step for the rod alone (``time.scheme = "energy-momentum"``; docs/theory.md §12a).
+
+The midpoint Lie-group step of §9 resonates with its unresolved shear-rotation, axial and torsional modes on stiff
+nonlinear motion (§12).  This step conserves the total energy to the solver tolerance and the linear and angular
+momenta to round-off at any step, which bounds the stiff amplitudes (the potential is coercive): the
+energy-momentum idea of Simo & Tarnow (1992) and Simo, Tarnow & Doblaré (1995), here in the director ("rotationless")
+form of Betsch & Steinmann (2002) and Romero & Armero (2002) with a discrete gradient (Gonzalez 1996) of the rod's
+own potential.
+
+Unknowns per node: r_j and the frame Lambda_j = [d_1 d_2 d_3] as three directors in R^3 (the configuration lives in
+R^{12(N+1)}, where rotations act linearly), with the six orthonormality constraints g = d_i.d_j - delta_ij held by
+multipliers.  The kinetic energy is exactly the rod's, 1/2 m |r'|^2 + 1/2 W.I W = 1/2 m |r'|^2 + 1/2 sum_i E_i |d_i'|^2
+with E_i = tr(I)/2 - I_i (the Euler tensor; for the rod's I = rho diag(2I, I, I): E = (0, rho I, rho I)).
+The potential is the rod's (§9) with the directors in place of Lambda:
+Gamma_e = 1/2 (D_a + D_b)^T (r_b - r_a)/ds and Omega_e = cay^-1(D_a^T D_b)/ds = (2/ds) a/c with
+a = axial(R - R^T), c = 1 + tr R, R = D_a^T D_b.  The step (h, levels 0 -> 1, midpoint quantities with a bar):
+
+    M (v_1 - v_0) = -h ( grad_d U(q_0, q_1) + G(q_bar)^T lambda ),   q_1 - q_0 = h (v_0 + v_1)/2,   g(q_1) = 0,
+
+grad_d U the strain-space discrete gradient: the stresses at the mean of the two levels' strains times a strain
+"B-matrix" that maps q_1 - q_0 exactly onto the strain changes (Gamma and R are bilinear, so their midpoint
+derivatives are exact; Omega = 2a/(c ds) uses a_1/c_1 - a_0/c_0 = (c_bar da - a_bar dc)/(c_0 c_1)).  Hence
+U(q_1) - U(q_0) = grad_d U . (q_1 - q_0) identically (for any q_0, q_1, not only orthonormal frames), g quadratic
+gives g(q_1) - g(q_0) = G(q_bar)(q_1 - q_0), and the kinetic energy changes by v_bar . M dv = -dU: energy conserved
+to the solver's residual.  Every piece is invariant under r -> Q r + c, D -> Q D for all Q in O(3) acting linearly,
+so the midpoint-evaluated gradients annihilate the rigid directions at q_bar: P and J = sum r x m v + d_i x E_i d_i'
+are conserved to round-off.
+
+Scope in this version: the rod alone, free, pinned or clamped ends, gravity and a dead tip force (potentials linear
+in r: their discrete gradient is exact); no tip torque, fluid, wall, constraint, paper measure or periodic ends (the
+scene check refuses them in one line).  The default remains the midpoint scheme.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .errors import SolverError
+
+CHI = np.array([1.0, 0.0, 0.0])
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+NV = 18  # unknowns per node: r (3), D (9, row-major Lambda), lambda (6)
+
+
+def supports(model):
+    """None when the energy-momentum step covers ``model``, else a one-line reason (naming the key)."""
+    if model.tube is not None or getattr(model, "rod", None) is None:
+        return "time.scheme: 'energy-momentum' covers the rod alone ([rod] without [fluid]/[wall]) in this version"
+    rod = model.rod
+    sc = model.scene
+    if rod.constrained:
+        return "time.scheme: 'energy-momentum' does not cover rod.constraint in this version"
+    if rod.periodic:
+        return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
+    if np.any(rod.torque):
+        return "time.scheme: 'energy-momentum' does not cover a tip torque (rod.load.torque) in this version"
+    if rod.paper_measure:
+        return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
+    return None
+
+
+def _axial(S):
+    return np.stack([S[..., 2, 1] - S[..., 1, 2], S[..., 0, 2] - S[..., 2, 0], S[..., 1, 0] - S[..., 0, 1]], axis=-1)
+
+
+def _hat(a):
+    z = np.zeros_like(a[..., 0])
+    return np.stack([np.stack([z, -a[..., 2], a[..., 1]], -1), np.stack([a[..., 2], z, -a[..., 0]], -1),
+                     np.stack([-a[..., 1], a[..., 0], z], -1)], axis=-2)
+
+
+def _T(A):
+    return np.swapaxes(A, -1, -2)
+
+
+def strains(r, D, ds):
+    """Element strains of the director configuration (any D, orthonormal or not): Omega, Gamma, and a, c of
+    Omega = (2/ds) a/c."""
+    Da, Db = D[..., :-1, :, :], D[..., 1:, :, :]
+    dr = r[..., 1:, :] - r[..., :-1, :]
+    Ga = np.einsum("...ji,...j->...i", 0.5 * (Da + Db), dr) / ds
+    R = _T(Da) @ Db
+    a = _axial(R)
+    c = 1.0 + R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    return 2.0 * a / (c[..., None] * ds), Ga, a, c
+
+
+def potential(r, D, ds, Jd, Kd):
+    """U = sum_e ds (1/2 Omega.J Omega + 1/2 (Gamma - chi).K (Gamma - chi)) (docs/theory.md §9)."""
+    Om, Ga, _, _ = strains(r, D, ds)
+    dG = Ga - CHI
+    return ds * np.sum(0.5 * np.sum(Jd * Om * Om, -1) + 0.5 * np.sum(Kd * dG * dG, -1), -1)
+
+
+def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd):
+    """grad_d U(q_0, q_1) = (F_r (.., N+1, 3), F_D (.., N+1, 3, 3)) with
+    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a)."""
+    Om0, Ga0, a0, c0 = strains(r0, D0, ds)
+    Om1, Ga1, a1, c1 = strains(r1, D1, ds)
+    rb, Db = 0.5 * (r0 + r1), 0.5 * (D0 + D1)
+    n = Kd * (0.5 * (Ga0 + Ga1) - CHI)  # stress at the mean strain
+    m = Jd * 0.5 * (Om0 + Om1)
+    # stretch-shear: ds n . dGamma, dGamma = 1/2 (Db_a + Db_b)^T (dr_b - dr_a)/ds + 1/2 (dD_a + dD_b)^T (rb_b - rb_a)/ds
+    Fr = np.zeros(np.broadcast_shapes(r0.shape, r1.shape), dtype=np.result_type(r0, r1, D0, D1))
+    FD = np.zeros(Fr.shape[:-1] + (3, 3), dtype=Fr.dtype)
+    Dm = 0.5 * (Db[..., :-1, :, :] + Db[..., 1:, :, :])
+    fn = np.einsum("...ij,...j->...i", Dm, n)
+    Fr[..., 1:, :] += fn
+    Fr[..., :-1, :] -= fn
+    drb = rb[..., 1:, :] - rb[..., :-1, :]
+    G = 0.5 * drb[..., :, None] * n[..., None, :]
+    FD[..., :-1, :, :] += G
+    FD[..., 1:, :, :] += G
+    # bending-torsion: ds m . dOmega = alpha . da + beta dc, with R = D_a^T D_b bilinear
+    cc = c0 * c1
+    alpha = 2.0 * (0.5 * (c0 + c1))[..., None] * m / cc[..., None]
+    beta = -2.0 * np.sum(0.5 * (a0 + a1) * m, -1) / cc
+    Phi = _hat(alpha) + beta[..., None, None] * np.eye(3)  # d(alpha.a + beta c)/dR
+    FD[..., :-1, :, :] += Db[..., 1:, :, :] @ _T(Phi)
+    FD[..., 1:, :, :] += Db[..., :-1, :, :] @ Phi
+    return Fr, FD
+
+
+def director_masses(rod):
+    """Node masses m_j and director masses E_ji = w_j (tr I / 2 - I_i) of the rod's lumped kinetic metric."""
+    I = rod.section.inertia
+    return rod.node_mass.copy(), rod.w[:, None] * (0.5 * I.sum() - I)[None, :]
+
+
+class RodEMStep:
+    """Energy-momentum stepping of a free rod alone (docs/theory.md §12a); its own state (r, D, v, V)."""
+
+    def __init__(self, model, h, tol=1e-13, max_iter=40):
+        why = supports(model)
+        if why:
+            raise SolverError(why)
+        rod = model.rod
+        self.rod, self.h, self.tol, self.max_iter = rod, float(h), tol, max_iter
+        self.N, self.ds = rod.N, rod.ds
+        self.Jd, self.Kd = rod.section.J, rod.section.K
+        self.m, self.E = director_masses(rod)
+        self.r = rod.r0.copy()
+        self.D = rod.Lam0.copy()
+        self.v = rod.v0.copy()
+        W = rod.omega0  # body angular velocity: d_i' = Lambda (W x e_i)
+        self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
+        self.lam = np.zeros((self.N + 1, 6))
+        # conservative loads, linear in r (their discrete gradient is exact): gravity on the lumped masses, the dead
+        # tip force; U_ext = -sum f_j . r_j
+        self.fext = self.m[:, None] * rod.g[None, :]
+        self.fext[-1] += rod.force
+        # supports: a pinned node keeps r (its rows become r_1 - r_0 = 0), a clamped one also its directors and its
+        # multipliers (its orthonormality then holds by itself)
+        self.fixed = np.zeros((self.N + 1, NV), dtype=bool)
+        for node, kind in ((0, model.scene.rod.ends.s0), (self.N, model.scene.rod.ends.sL)):
+            if kind in ("pinned", "clamped"):
+                self.fixed[node, :3] = True
+            if kind == "clamped":
+                self.fixed[node, 3:] = True
+        self.fixed = self.fixed.ravel()
+        self.n = 0
+        self.last = dict(iterations=0, jacobians=0, fallback=0)
+        self._lu = None
+        self._plan = None
+        self._prev = None
+        self.rate_refresh = 0.5
+        #: the compiled residual (``_k_residual``) for the iterations and the Jacobian; False: the numpy reference
+        self.compiled = True
+        self.stats = dict(iterations=0, jacobians=0, residuals=0)
+
+    # -- the step's equations ---------------------------------------------------------------------------
+
+    def _unpack(self, z):
+        z = z.reshape(z.shape[:-1] + (self.N + 1, NV))
+        return z[..., :3], z[..., 3:12].reshape(z.shape[:-1] + (3, 3)), z[..., 12:]
+
+    def residual(self, z):
+        """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1, D_1, lambda) per node."""
+        h = self.h
+        r1, D1, lam = self._unpack(z)
+        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd)
+        Db = 0.5 * (self.D + D1)
+        S = np.stack([np.stack([2 * lam[..., 0], lam[..., 3], lam[..., 4]], -1),
+                      np.stack([lam[..., 3], 2 * lam[..., 1], lam[..., 5]], -1),
+                      np.stack([lam[..., 4], lam[..., 5], 2 * lam[..., 2]], -1)], -2)
+        Rr = (2.0 / h) * self.m[:, None] * (r1 - self.r - h * self.v) + h * Fr
+        RD = (2.0 / h) * self.E[:, None, :] * (D1 - self.D - h * self.V) + h * (FD + Db @ S)
+        C = _T(D1) @ D1
+        Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
+        out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
+        out = out.reshape(out.shape[:-2] + (-1,))
+        return self._loads_and_supports(z, out)
+
+    def _loads_and_supports(self, z, out):
+        """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by z - z_level."""
+        if np.any(self.fext):
+            o = out.reshape(out.shape[:-1] + (self.N + 1, NV))
+            o[..., :3] -= self.h * self.fext
+        if np.any(self.fixed):
+            zl = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))
+            out[..., self.fixed] = z[..., self.fixed] - zl[self.fixed]
+        return out
+
+    def _kernel(self, z, out):
+        _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, out)
+        self._loads_and_supports(z, out)
+
+    def residual_compiled(self, z):
+        """:meth:`residual` of one real z by the compiled kernel ``_k_residual`` (tested equal)."""
+        out = np.empty((1, z.size))
+        self._kernel(np.ascontiguousarray(z, dtype=np.float64)[None, :], out)
+        return out[0]
+
+    def jacobian(self, z):
+        """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 54 batched residuals."""
+        n = (self.N + 1) * NV
+        if self._plan is None:
+            node = np.arange(n) // NV
+            comp = np.arange(n) % NV
+            rows, cols = [], []
+            for j in range(self.N + 1):
+                for k in range(max(0, j - 1), min(self.N, j + 1) + 1):
+                    rr, cc = np.meshgrid(np.arange(j * NV, (j + 1) * NV), np.arange(k * NV, (k + 1) * NV), indexing="ij")
+                    rows.append(rr.ravel())
+                    cols.append(cc.ravel())
+            rows, cols = np.concatenate(rows), np.concatenate(cols)
+            self._plan = (node, comp, rows, cols)
+        node, comp, rows, cols = self._plan
+        eps = 1e-30
+        P = np.zeros((3 * NV, n), dtype=complex)
+        for col in range(3):
+            for c in range(NV):
+                P[col * NV + c, (node % 3 == col) & (comp == c)] = 1j * eps
+        zc = z[None, :] + P
+        if self.compiled:
+            Rc = np.empty_like(zc)
+            self._kernel(zc, Rc)
+            Rc = Rc.imag / eps
+        else:
+            Rc = self.residual(zc).imag / eps  # (54, n)
+        self.stats["residuals"] += 54
+        # entry (row, col) comes from the batch of col's colour and component
+        b = (node[cols] % 3) * NV + comp[cols]
+        vals = Rc[b, rows]
+        return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
+
+    def _pack(self, r, D, lam):
+        return np.concatenate([r, D.reshape(-1, 9), lam], 1).ravel()
+
+    def body_angular_velocity(self):
+        """W_j from the massive directors' velocities: Lambda^T d_i' = W x e_i for i = 2, 3 (d_1 carries no inertia,
+        E_1 = 0, so its velocity is not a dynamical quantity)."""
+        A = _T(self.D) @ self.V
+        return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+
+    def _predict_rigid(self):
+        from .lie import cay
+
+        return self._pack(self.r + self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()), self.lam)
+
+    def _predict_rest(self):
+        return self._pack(self.r, self.D, self.lam)
+
+    def _predict(self):
+        """The last step repeated (r_n + (r_n - r_{n-1}), D_n D_{n-1}^T D_n); the first step a rigid motion at the
+        initial velocities.  The level velocities are a poor guess at unresolved steps (the stiff modes flip sign
+        every step): repeating the last increment halves the predictor error on the hard cases."""
+        if self._prev is None:
+            return self._predict_rigid()
+        r_, D_ = self._prev
+        return self._pack(2.0 * self.r - r_, self.D @ (_T(D_) @ self.D), self.lam)
+
+    def _body_frames(self):
+        """T = blockdiag(D_n, D_n (x) I_3, I_6) per node: the unknowns' updates in the level's body frames
+        (dr = D_n db, dD = D_n dB).  Newton solves T^T J T du = -T^T R: that matrix does not rotate with the rod
+        (J(Q z) = Q J(z) Q^T for a rigid turn Q), so a factorisation is reused across steps of a spinning rod as the
+        midpoint's body-frame unknowns are (docs/theory.md §9)."""
+        D = self.D
+        blk = np.zeros((self.N + 1, NV, NV))
+        blk[:, :3, :3] = D
+        for a in range(3):
+            for b in range(3):
+                blk[:, 3 + 3 * a: 6 + 3 * a, 3 + 3 * b: 6 + 3 * b] = D[:, a, b, None, None] * np.eye(3)
+        blk[:, 12:, 12:] = np.eye(6)
+        n = self.N + 1
+        return sp.bsr_matrix((blk, np.arange(n), np.arange(n + 1)), shape=(n * NV, n * NV)).tocsr()
+
+    def _solve(self, z, chord):
+        """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
+        than 1/2; a fresh one that does not contract ends the attempt), or full Newton (``chord=False``: a fresh
+        Jacobian every iteration; the update may grow before it converges).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
+        positions to L, directors) it stops when the next update no longer shrinks."""
+        sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
+        T = self._body_frames()
+        qmask = np.tile(np.arange(NV) < 12, self.N + 1)
+        last = np.inf
+        fresh = False
+        for it in range(1, self.max_iter + 1):
+            R = self.residual_compiled(z) if self.compiled else self.residual(z)
+            self.stats["residuals"] += 1
+            if not np.all(np.isfinite(R)):
+                raise SolverError(f"step {self.n + 1}: non-finite residual")
+            if self._lu is None or not chord:
+                try:
+                    self._lu = spla.splu((T.T @ self.jacobian(z) @ T).tocsc())
+                except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+                    self._lu = None
+                    raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
+                self.stats["jacobians"] += 1
+                fresh = True
+            dz = T @ self._lu.solve(T.T @ -R)
+            size = float(np.max(np.abs(dz[qmask]) / sc))
+            if not np.isfinite(size):
+                raise SolverError(f"step {self.n + 1}: singular Newton matrix")
+            if size >= last and last < 1e3 * self.tol:
+                return z, it  # round-off floor reached: the update no longer shrinks
+            if size > last and fresh and chord:
+                raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
+            z = z + dz
+            if size < 1e-3 * self.tol:
+                return z, it
+            if chord and it > 1 and size > self.rate_refresh * last and not fresh and last >= self.tol:
+                self._lu = None  # slow contraction: refresh the Jacobian
+            fresh = False
+            last = size
+        if last < 1e3 * self.tol:
+            return z, self.max_iter
+        raise SolverError(f"step {self.n + 1}: Newton did not converge in {self.max_iter} iterations (update {last:.2e})")
+
+    def step(self):
+        """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (a rigid
+        motion at the level's velocities); on failure full Newton from the same predictor."""
+        h = self.h
+        jac0 = self.stats["jacobians"]
+        fallback = 0
+        try:
+            z, it = self._solve(self._predict(), chord=True)
+        except SolverError as exc:
+            # full Newton from the same predictor, then from a rigid motion at the level's velocities, then from rest
+            self.stats["fallbacks"] = self.stats.get("fallbacks", 0) + 1
+            fallback = 1
+            for start in (self._predict, self._predict_rigid, self._predict_rest):
+                self._lu = None
+                try:
+                    z, it = self._solve(start(), chord=False)
+                    break
+                except SolverError as e:
+                    exc = e
+            else:
+                self._lu = None
+                raise exc
+        if np.any(self.fixed):  # held unknowns exactly at the level (Newton leaves them within round-off of it)
+            z[self.fixed] = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))[self.fixed]
+        r1, D1, lam = self._unpack(z)
+        self.v = 2.0 * (r1 - self.r) / h - self.v
+        self.V = 2.0 * (D1 - self.D) / h - self.V
+        self._prev = (self.r, self.D)
+        self.r, self.D, self.lam = r1.copy(), D1.copy(), lam.copy()
+        # d_1 has no inertia: its level velocity is set to the rigid one of the frame (it enters nothing)
+        W = self.body_angular_velocity()
+        self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
+        self.n += 1
+        self.stats["iterations"] += it
+        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
+        return it
+
+    def step_state(self, st, model):
+        """One step, returned as the stepper's :class:`varint.stepper.State` (q: frames and positions; p: the node
+        momenta m v and the body angular momenta Pi = D^T sum_i d_i x E_i d_i')."""
+        from .rod import pack_level
+        from .stepper import State
+
+        if st.n != self.n:
+            raise SolverError("time.scheme: 'energy-momentum' cannot restart from a checkpoint in this version")
+        self.step()
+        q, p = st.q.copy(), st.p.copy()
+        q[model.rod_q] = pack_level(self.D, self.r)
+        Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),
+                                                      np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum(1))
+        p[model.rod_p] = np.concatenate([(self.m[:, None] * self.v).ravel(), Pi.ravel()])
+        return State(self.n, self.n * self.h, q, p, st.lam, st.v, st.q.copy(), None)
+
+    def monitors(self):
+        """The conserved energy (kinetic in the director velocities) and momenta, for the stepper's monitors."""
+        kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
+        E = self.energy()
+        return {"energy": E, "kinetic_energy": float(kin), "linear_momentum": self.linear_momentum(),
+                "angular_momentum": self.angular_momentum(), "frame_orthogonality": self.orthonormality()}
+
+    # -- monitors ------------------------------------------------------------------------------------
+
+    def energy(self):
+        """The conserved total energy: 1/2 m |v|^2 + 1/2 E_i |d_i'|^2 + U."""
+        kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
+        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd) - np.sum(self.fext * self.r))
+
+    def linear_momentum(self):
+        return (self.m[:, None] * self.v).sum(0)
+
+    def angular_momentum(self):
+        return (np.cross(self.r, self.m[:, None] * self.v).sum(0)
+                + np.cross(np.swapaxes(self.D, 1, 2), np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum((0, 1)))
+
+    def orthonormality(self):
+        return float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3))))
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# compiled residual (the same equations as RodEMStep.residual, which stays the readable reference; tested equal).
+# One kernel serves real arguments (chord iterations) and complex ones (the complex-step Jacobian's batch).
+
+from numba import njit  # noqa: E402
+
+
+@njit(cache=True, error_model="numpy")
+def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
+    B, n = z.shape
+    N1 = r0.shape[0]
+    Da = np.empty((3, 3), dtype=z.dtype)
+    for b in range(B):
+        zb = z[b]
+        ob = out[b]
+        for j in range(N1):
+            o = 18 * j
+            for k in range(3):
+                ob[o + k] = (2.0 / h) * m[j] * (zb[o + k] - r0[j, k] - h * v0[j, k])
+            l0, l1, l2, l3, l4, l5 = zb[o + 12], zb[o + 13], zb[o + 14], zb[o + 15], zb[o + 16], zb[o + 17]
+            for i in range(3):
+                # constraint force (Db S)_ik, S = [[2l0, l3, l4], [l3, 2l1, l5], [l4, l5, 2l2]]
+                d0 = 0.5 * (D0[j, i, 0] + zb[o + 3 + 3 * i])
+                d1 = 0.5 * (D0[j, i, 1] + zb[o + 4 + 3 * i])
+                d2 = 0.5 * (D0[j, i, 2] + zb[o + 5 + 3 * i])
+                f0 = d0 * 2.0 * l0 + d1 * l3 + d2 * l4
+                f1 = d0 * l3 + d1 * 2.0 * l1 + d2 * l5
+                f2 = d0 * l4 + d1 * l5 + d2 * 2.0 * l2
+                ob[o + 3 + 3 * i] = (2.0 / h) * E[j, 0] * (zb[o + 3 + 3 * i] - D0[j, i, 0] - h * V0[j, i, 0]) + h * f0
+                ob[o + 4 + 3 * i] = (2.0 / h) * E[j, 1] * (zb[o + 4 + 3 * i] - D0[j, i, 1] - h * V0[j, i, 1]) + h * f1
+                ob[o + 5 + 3 * i] = (2.0 / h) * E[j, 2] * (zb[o + 5 + 3 * i] - D0[j, i, 2] - h * V0[j, i, 2]) + h * f2
+            # constraints D1^T D1 - I: (00, 11, 22, 01, 02, 12)
+            for p in range(6):
+                if p < 3:
+                    a1, a2 = p, p
+                elif p == 3:
+                    a1, a2 = 0, 1
+                elif p == 4:
+                    a1, a2 = 0, 2
+                else:
+                    a1, a2 = 1, 2
+                s = zb[o + 3 + a1] * zb[o + 3 + a2] + zb[o + 6 + a1] * zb[o + 6 + a2] + zb[o + 9 + a1] * zb[o + 9 + a2]
+                ob[o + 12 + p] = s - (1.0 if a1 == a2 else 0.0)
+        for e in range(N1 - 1):
+            oa, obb = 18 * e, 18 * (e + 1)
+            # level strains: Gamma, a, c at both levels
+            G0 = np.zeros(3, dtype=z.dtype)
+            G1 = np.zeros(3, dtype=z.dtype)
+            A0 = np.zeros(3, dtype=z.dtype)
+            A1 = np.zeros(3, dtype=z.dtype)
+            R0 = np.zeros((3, 3), dtype=z.dtype)
+            R1 = np.zeros((3, 3), dtype=z.dtype)
+            for i in range(3):
+                for k in range(3):
+                    G0[i] += 0.5 * (D0[e, k, i] + D0[e + 1, k, i]) * (r0[e + 1, k] - r0[e, k]) / ds
+                    G1[i] += 0.5 * (zb[oa + 3 + 3 * k + i] + zb[obb + 3 + 3 * k + i]) * (zb[obb + k] - zb[oa + k]) / ds
+                    for l in range(3):
+                        R0[i, k] += D0[e, l, i] * D0[e + 1, l, k]
+                        R1[i, k] += zb[oa + 3 + 3 * l + i] * zb[obb + 3 + 3 * l + k]
+            A0[0], A0[1], A0[2] = R0[2, 1] - R0[1, 2], R0[0, 2] - R0[2, 0], R0[1, 0] - R0[0, 1]
+            A1[0], A1[1], A1[2] = R1[2, 1] - R1[1, 2], R1[0, 2] - R1[2, 0], R1[1, 0] - R1[0, 1]
+            c0 = 1.0 + R0[0, 0] + R0[1, 1] + R0[2, 2]
+            c1 = 1.0 + R1[0, 0] + R1[1, 1] + R1[2, 2]
+            cc = c0 * c1
+            nn = np.empty(3, dtype=z.dtype)
+            mm = np.empty(3, dtype=z.dtype)
+            for i in range(3):
+                nn[i] = Kd[i] * (0.5 * (G0[i] + G1[i]) - (1.0 if i == 0 else 0.0))
+                mm[i] = Jd[i] * 0.5 * (2.0 * A0[i] / (c0 * ds) + 2.0 * A1[i] / (c1 * ds))
+            beta = 0.0 * c0
+            for i in range(3):
+                beta += -2.0 * 0.5 * (A0[i] + A1[i]) * mm[i] / cc
+            al0 = 2.0 * 0.5 * (c0 + c1) * mm[0] / cc
+            al1 = 2.0 * 0.5 * (c0 + c1) * mm[1] / cc
+            al2 = 2.0 * 0.5 * (c0 + c1) * mm[2] / cc
+            # Phi = hat(alpha) + beta I
+            P00, P01, P02 = beta, -al2, al1
+            P10, P11, P12 = al2, beta, -al0
+            P20, P21, P22 = -al1, al0, beta
+            for k in range(3):  # spatial row k
+                Dak = np.empty(3, dtype=z.dtype)
+                Dbk = np.empty(3, dtype=z.dtype)
+                for i in range(3):
+                    Dak[i] = 0.5 * (D0[e, k, i] + zb[oa + 3 + 3 * k + i])
+                    Dbk[i] = 0.5 * (D0[e + 1, k, i] + zb[obb + 3 + 3 * k + i])
+                fn = 0.0 * c0
+                for i in range(3):
+                    fn += 0.5 * (Dak[i] + Dbk[i]) * nn[i]
+                ob[obb + k] += h * fn
+                ob[oa + k] -= h * fn
+                drb = 0.5 * (r0[e + 1, k] + zb[obb + k]) - 0.5 * (r0[e, k] + zb[oa + k])
+                # F_Da[k, i] += 1/2 drb_k n_i + (Db_b Phi^T)[k, i];  F_Db[k, i] += 1/2 drb_k n_i + (Db_a Phi)[k, i]
+                for i in range(3):
+                    g = 0.5 * drb * nn[i]
+                    if i == 0:
+                        pa = Dbk[0] * P00 + Dbk[1] * P01 + Dbk[2] * P02
+                        pb = Dak[0] * P00 + Dak[1] * P10 + Dak[2] * P20
+                    elif i == 1:
+                        pa = Dbk[0] * P10 + Dbk[1] * P11 + Dbk[2] * P12
+                        pb = Dak[0] * P01 + Dak[1] * P11 + Dak[2] * P21
+                    else:
+                        pa = Dbk[0] * P20 + Dbk[1] * P21 + Dbk[2] * P22
+                        pb = Dak[0] * P02 + Dak[1] * P12 + Dak[2] * P22
+                    ob[oa + 3 + 3 * k + i] += h * (g + pa)
+                    ob[obb + 3 + 3 * k + i] += h * (g + pb)
