@@ -308,6 +308,29 @@ def _steepest_jump(F, k, window, path):
     return i, c, p
 
 
+def _shock_sides(F, n, window, path, offset):
+    """The steepest jump of record n and the parcels ``offset`` either side of it: (i, centres, pressures, il, ir,
+    level), level the mean of the two sides' pressures (the shock's position is where p crosses it)."""
+    i, c, p = _steepest_jump(F, n, window, path)
+    il, ir = i - offset, i + 1 + offset
+    if il < 0 or ir >= len(p):
+        raise ShockError(f"{path}: the shock at parcel {i} is closer than {offset} parcels to an end")
+    return i, c, p, il, ir, 0.5 * (p[il] + p[ir])
+
+
+def _level_crossing(c, p, i, level):
+    """Where the pressure crosses ``level`` at the jump between parcels i, i + 1 (at the jump's mid-pressure if the
+    level is outside it)."""
+    inside = min(p[i], p[i + 1]) <= level <= max(p[i], p[i + 1])
+    return _crossing(c, p, i, level if inside else 0.5 * (p[i] + p[i + 1]))
+
+
+def _shock_position(F, k, level, window, path):
+    """Where record k's pressure crosses ``level`` at its steepest jump."""
+    i, c, p = _steepest_jump(F, k, window, path)
+    return _level_crossing(c, p, i, level)
+
+
 def measure_shock(path, record=-1, offset=4, window=None, gamma=None):
     """Jumps across the captured shock of one record of a run file, and their Rankine–Hugoniot residuals.
 
@@ -343,18 +366,9 @@ def measure_shock(path, record=-1, offset=4, window=None, gamma=None):
             gamma = 1.4
     t = run["time"]
 
-    def locate(k):
-        return _steepest_jump(F, k, window, path)
-
-    i, c, p = locate(n)
-    M = len(p)
-    il, ir = i - offset, i + 1 + offset
-    if il < 0 or ir >= M:
-        raise ShockError(f"{path}: the shock at parcel {i} is closer than {offset} parcels to an end")
-    level = 0.5 * (p[il] + p[ir])
+    i, c, p, il, ir, level = _shock_sides(F, n, window, path, offset)
     x1 = _crossing(c, p, i, level)
-    i0, c0, p0 = locate(n - 1)
-    x0 = _crossing(c0, p0, i0, level if min(p0[i0], p0[i0 + 1]) <= level <= max(p0[i0], p0[i0 + 1]) else 0.5 * (p0[i0] + p0[i0 + 1]))
+    x0 = _shock_position(F, n - 1, level, window, path)
     speed = (x1 - x0) / (t[n] - t[n - 1])
     u_lab = F["fluid/velocity"][n]
     u = 0.5 * (u_lab[:-1] + u_lab[1:])
@@ -440,20 +454,8 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
     gamma = float(sc.get("fluid", {}).get("gamma", 1.4)) if gamma is None else gamma
     R0, ds = float(tube["radius"]), float(tube["length"]) / (int(tube["nodes"]) - 1)
 
-    def locate(k):
-        return _steepest_jump(F, k, window, path)
-
-    i, c, p = locate(n)
-    M = len(p)
-    il, ir = i - offset, i + 1 + offset
-    if il < 0 or ir >= M:
-        raise ShockError(f"{path}: the shock at parcel {i} is closer than {offset} parcels to an end")
-    level = 0.5 * (p[il] + p[ir])
-    xs = []
-    for k in range(n - span, n + span + 1):
-        ik, ck, pk = locate(k)
-        inside = min(pk[ik], pk[ik + 1]) <= level <= max(pk[ik], pk[ik + 1])
-        xs.append(_crossing(ck, pk, ik, level if inside else 0.5 * (pk[ik] + pk[ik + 1])))
+    level = _shock_sides(F, n, window, path, offset)[-1]
+    xs = [_shock_position(F, k, level, window, path) for k in range(n - span, n + span + 1)]
     # least squares through the crossings: a line, or a parabola (the shock may accelerate) from 5 records on
     tt = t[n - span:n + span + 1] - t[n]
     speed = float(np.polyfit(tt, xs, 2 if len(xs) >= 5 else 1)[-2])
@@ -462,10 +464,10 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
     def sides(k):
         """(left, right) of record k as parameter vectors (rho, u, p, Gamma (3), gam (3)), offset parcels either
         side of that record's steepest jump; the rates are centred on records k - 1, k + 1."""
-        ik, ck, pk = locate(k)
-        a, b = ik - offset, ik + 1 + offset
-        if a < 0 or b >= M:
-            raise ShockError(f"{path}: the shock at parcel {ik} of record {k} is closer than {offset} parcels to an end")
+        try:
+            ik, ck, pk, a, b, _ = _shock_sides(F, k, window, path, offset)
+        except ShockError as exc:
+            raise ShockError(f"{exc} (record {k})") from None
         dt = t[k + 1] - t[k - 1]
         u_lab = (F["fluid/s"][k + 1] - F["fluid/s"][k - 1]) / dt
         r, Lam = F["rod/r"][k], F["rod/Lambda"][k]
@@ -475,8 +477,7 @@ def measure_coupled_shock(path, record=None, offset=4, window=None, gamma=None, 
         # the tube's strain and velocity at the shock itself (the tube is smooth across it: the conditions take
         # one Gamma, gam for both sides; read at the fluid states, offset parcels away, they would carry the tube's
         # own gradients, e.g. a stretching tube's d gam/ds, into the residuals)
-        inside = min(pk[ik], pk[ik + 1]) <= level <= max(pk[ik], pk[ik + 1])
-        xk = _crossing(ck, pk, ik, level if inside else 0.5 * (pk[ik] + pk[ik + 1]))
+        xk = _level_crossing(ck, pk, ik, level)
         e = min(max(int(math.floor(xk / ds)), 0), N - 1)
         tau = xk / ds - e
         Lhat = 0.5 * (Lam[e] + Lam[e + 1])
