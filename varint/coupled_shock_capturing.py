@@ -45,13 +45,13 @@ the step's chart, X for Q with the mean-value correction (tests/test_coupled_sho
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import scipy.sparse as sp
 
 from .forces import Declaration, Force
-from .shock_capturing import heated_entropy, limited, mean_value_pressure, tridiagonal, viscous_pressure
+from .shock_capturing import (heated_entropy, limited, mean_value_pressure, set_viscosity, tridiagonal,
+                              viscous_pressure)
 
 __all__ = ["CoupledShockCapturing"]
 
@@ -64,12 +64,7 @@ class CoupledShockCapturing(Force):
     declaration = Declaration("shock_capturing", {"parcel_entropy": None})
 
     def __init__(self, tube, keys):
-        eos = tube.eos
-        self.tube = tube
-        self.gamma, self.cv = eos.gamma, eos.cv
-        self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
-        self.limiter = getattr(keys, "limiter", "none") == "christensen"
-        self.A = math.pi * float(tube.R0) ** 2
+        set_viscosity(self, tube, keys)
         #: a dynamic wall: the compression rate uses each parcel's mean cross-section at level n (below)
         self.wall = bool(tube.has_wall)
         #: correct the midpoint pressure towards the mean-value one on the level volumes (docs/theory.md §11a)

@@ -224,6 +224,18 @@ def heated_entropy(S, V1, K, W, gamma, cv):
     return out
 
 
+def set_viscosity(force, tube, keys):
+    """The section's viscosity and the gas on a shock-capturing force (straight or coupled): ``tube``, ``gamma``,
+    ``cv``, the coefficients ``cQ``, ``cL``, ``limiter`` (Christensen's on Q, :func:`limited`: off unless the section
+    asks for it) and the reference cross-section ``A`` = pi R0^2."""
+    eos = tube.eos
+    force.tube = tube
+    force.gamma, force.cv = eos.gamma, eos.cv
+    force.cQ, force.cL = float(keys.quadratic), float(keys.linear)
+    force.limiter = getattr(keys, "limiter", "none") == "christensen"
+    force.A = math.pi * float(tube.R0) ** 2
+
+
 class ShockCapturing(Force):
     """The ``[shock_capturing]`` force on a :class:`varint.tube.TubePart` (module docstring).
 
@@ -236,13 +248,7 @@ class ShockCapturing(Force):
     declaration = Declaration("shock_capturing", {"parcel_entropy": None})
 
     def __init__(self, tube, keys):
-        eos = tube.eos
-        self.tube = tube
-        self.gamma, self.cv = eos.gamma, eos.cv
-        self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
-        #: Christensen's limiter on Q (:func:`limited`): off unless the section asks for it (key ``limiter``)
-        self.limiter = getattr(keys, "limiter", "none") == "christensen"
-        self.A = math.pi * float(tube.R0) ** 2
+        set_viscosity(self, tube, keys)
         M = tube.M
         # The labels are s = c0_s + B_s z with B_s a 0/1 selection (interior labels; a periodic tube's s_M
         # is s_0 + L): keep its (label, z) pairs and apply it by indexing rather than sparse products.
