@@ -179,16 +179,19 @@ class RodEMStep:
         return z[..., :3], z[..., 3:12].reshape(z.shape[:-1] + (3, 3)), z[..., 12:]
 
     def residual(self, z):
-        """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1, D_1, lambda) per node."""
+        """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1 - r_0, D_1 - D_0, lambda) per node: the
+        unknowns are the increments, so that the level velocities v_1 = 2 dr/h - v_0 carry no rounding of the
+        positions (docs/theory.md §12a, "Momenta to round-off")."""
         h = self.h
-        r1, D1, lam = self._unpack(z)
+        dr, dD, lam = self._unpack(z)
+        r1, D1 = self.r + dr, self.D + dD
         Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd)
         Db = 0.5 * (self.D + D1)
         S = np.stack([np.stack([2 * lam[..., 0], lam[..., 3], lam[..., 4]], -1),
                       np.stack([lam[..., 3], 2 * lam[..., 1], lam[..., 5]], -1),
                       np.stack([lam[..., 4], lam[..., 5], 2 * lam[..., 2]], -1)], -2)
-        Rr = (2.0 / h) * self.m[:, None] * (r1 - self.r - h * self.v) + h * Fr
-        RD = (2.0 / h) * self.E[:, None, :] * (D1 - self.D - h * self.V) + h * (FD + Db @ S)
+        Rr = (2.0 / h) * self.m[:, None] * (dr - h * self.v) + h * Fr
+        RD = (2.0 / h) * self.E[:, None, :] * (dD - h * self.V) + h * (FD + Db @ S)
         C = _T(D1) @ D1
         Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
         out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
@@ -196,13 +199,12 @@ class RodEMStep:
         return self._loads_and_supports(z, out)
 
     def _loads_and_supports(self, z, out):
-        """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by z - z_level."""
+        """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by their increments z."""
         if np.any(self.fext):
             o = out.reshape(out.shape[:-1] + (self.N + 1, NV))
             o[..., :3] -= self.h * self.fext
         if np.any(self.fixed):
-            zl = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))
-            out[..., self.fixed] = z[..., self.fixed] - zl[self.fixed]
+            out[..., self.fixed] = z[..., self.fixed]
         return out
 
     def _kernel(self, z, out):
@@ -260,19 +262,19 @@ class RodEMStep:
     def _predict_rigid(self):
         from .lie import cay
 
-        return self._pack(self.r + self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()), self.lam)
+        return self._pack(self.h * self.v, self.D @ cay(self.h * self.body_angular_velocity()) - self.D, self.lam)
 
     def _predict_rest(self):
-        return self._pack(self.r, self.D, self.lam)
+        return self._pack(np.zeros_like(self.r), np.zeros_like(self.D), self.lam)
 
     def _predict(self):
-        """The last step repeated (r_n + (r_n - r_{n-1}), D_n D_{n-1}^T D_n); the first step a rigid motion at the
-        initial velocities.  The level velocities are a poor guess at unresolved steps (the stiff modes flip sign
+        """The last step repeated (increments r_n - r_{n-1} and D_n D_{n-1}^T D_n - D_n); the first step a rigid motion
+        at the initial velocities.  The level velocities are a poor guess at unresolved steps (the stiff modes flip sign
         every step): repeating the last increment halves the predictor error on the hard cases."""
         if self._prev is None:
             return self._predict_rigid()
-        r_, D_ = self._prev
-        return self._pack(2.0 * self.r - r_, self.D @ (_T(D_) @ self.D), self.lam)
+        dr_, D_ = self._prev
+        return self._pack(dr_, self.D @ (_T(D_) @ self.D) - self.D, self.lam)
 
     def _body_frames(self):
         """T = blockdiag(D_n, D_n (x) I_3, I_6) per node: the unknowns' updates in the level's body frames
@@ -354,12 +356,16 @@ class RodEMStep:
                 self._lu = None
                 raise exc
         if np.any(self.fixed):  # held unknowns exactly at the level (Newton leaves them within round-off of it)
-            z[self.fixed] = self._pack(self.r, self.D, np.zeros((self.N + 1, 6)))[self.fixed]
-        r1, D1, lam = self._unpack(z)
-        self.v = 2.0 * (r1 - self.r) / h - self.v
-        self.V = 2.0 * (D1 - self.D) / h - self.V
-        self._prev = (self.r, self.D)
-        self.r, self.D, self.lam = r1.copy(), D1.copy(), lam.copy()
+            z[self.fixed] = 0.0
+        else:
+            z = self._polish_rigid(z)
+        dr, dD, lam = self._unpack(z)
+        # the velocities from the increments themselves, not from differences of rounded positions: the momenta then
+        # change by the residual's floor only (docs/theory.md §12a, "Momenta to round-off")
+        self.v = 2.0 * dr / h - self.v
+        self.V = 2.0 * dD / h - self.V
+        self._prev = (dr.copy(), self.D)
+        self.r, self.D, self.lam = self.r + dr, self.D + dD, lam.copy()
         # d_1 has no inertia: its level velocity is set to the rigid one of the frame (it enters nothing)
         W = self.body_angular_velocity()
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
@@ -367,6 +373,51 @@ class RodEMStep:
         self.stats["iterations"] += it
         self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
         return it
+
+    def _momentum_residuals(self, z):
+        """The step's linear and angular momentum balances (sum R_r, sum rbar x R_r + dbar_i x R_d_i) from their closed
+        forms: the internal and constraint forces' sums vanish identically (docs/theory.md §12a), so only the inertial
+        and load terms remain.  Evaluated this way they carry the round-off of the momenta (eps m|v|), not that of the
+        stiff forces (eps h|F|) that the full residual's sums carry."""
+        h = self.h
+        dr, dD, _ = self._unpack(z)
+        rb = self.r + 0.5 * dr
+        Db = self.D + 0.5 * dD
+        fr = (2.0 / h) * self.m[:, None] * (dr - h * self.v) - h * self.fext
+        fD = (2.0 / h) * self.E[:, None, :] * (dD - h * self.V)
+        P = fr.sum(0)
+        J = np.cross(rb, fr).sum(0) + np.cross(np.swapaxes(Db, 1, 2), np.swapaxes(fD, 1, 2)).sum((0, 1))
+        return P, J, rb, Db
+
+    def _polish_rigid(self, z):
+        """One Newton correction of the solution in the six rigid directions (dr += a + w x rbar, dd_i += w x dbar_i)
+        that zeroes the momentum balances of :meth:`_momentum_residuals`.  Newton's last iterate leaves the full
+        residual at its floor eps h|F| (the stiff forces' rounding); in the rigid directions, where the forces' sums
+        are known to vanish, the balances can be met to eps m|v|: without this the momenta random-walk by ~1e-12 over
+        10^5 steps of the hard cases, with it by ~1e-14 (docs/theory.md §12a, "Momenta to round-off").  The
+        correction is of the residual floor's size, so every other row stays at its floor."""
+        P, J, rb, Db = self._momentum_residuals(z)
+        m, E = self.m, self.E
+        M = m.sum()
+        S = (m[:, None] * rb).sum(0)
+        eye = np.eye(3)
+        Ilock = np.einsum("n,nk,nl->kl", m, rb, rb)
+        Ilock = eye * np.trace(Ilock) - Ilock
+        d = np.swapaxes(Db, 1, 2)  # d[n, i] = director i of node n
+        Id = np.einsum("ni,nik,nil->kl", E, d, d)
+        Ilock += eye * np.trace(Id) - Id
+        A = np.zeros((6, 6))
+        A[:3, :3] = M * eye
+        A[:3, 3:] = -_hat(S)
+        A[3:, :3] = _hat(S)
+        A[3:, 3:] = Ilock
+        aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
+        a, w = aw[:3], aw[3:]
+        z = z.copy()
+        zz = z.reshape(self.N + 1, NV)
+        zz[:, :3] += a + np.cross(w, rb)
+        zz[:, 3:12] += np.swapaxes(np.cross(w, d), 1, 2).reshape(-1, 9)
+        return z
 
     def step_state(self, st, model):
         """One step, returned as the stepper's :class:`varint.stepper.State` (q: frames and positions; p: the node
@@ -424,22 +475,30 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
     for b in range(B):
         zb = z[b]
         ob = out[b]
+        # the level-1 configuration from the increments (the unknowns; see RodEMStep.residual)
+        r1 = np.empty((N1, 3), dtype=z.dtype)
+        D1 = np.empty((N1, 3, 3), dtype=z.dtype)
+        for j in range(N1):
+            for k in range(3):
+                r1[j, k] = r0[j, k] + zb[18 * j + k]
+                for i in range(3):
+                    D1[j, k, i] = D0[j, k, i] + zb[18 * j + 3 + 3 * k + i]
         for j in range(N1):
             o = 18 * j
             for k in range(3):
-                ob[o + k] = (2.0 / h) * m[j] * (zb[o + k] - r0[j, k] - h * v0[j, k])
+                ob[o + k] = (2.0 / h) * m[j] * (zb[o + k] - h * v0[j, k])
             l0, l1, l2, l3, l4, l5 = zb[o + 12], zb[o + 13], zb[o + 14], zb[o + 15], zb[o + 16], zb[o + 17]
             for i in range(3):
                 # constraint force (Db S)_ik, S = [[2l0, l3, l4], [l3, 2l1, l5], [l4, l5, 2l2]]
-                d0 = 0.5 * (D0[j, i, 0] + zb[o + 3 + 3 * i])
-                d1 = 0.5 * (D0[j, i, 1] + zb[o + 4 + 3 * i])
-                d2 = 0.5 * (D0[j, i, 2] + zb[o + 5 + 3 * i])
+                d0 = 0.5 * (D0[j, i, 0] + D1[j, i, 0])
+                d1 = 0.5 * (D0[j, i, 1] + D1[j, i, 1])
+                d2 = 0.5 * (D0[j, i, 2] + D1[j, i, 2])
                 f0 = d0 * 2.0 * l0 + d1 * l3 + d2 * l4
                 f1 = d0 * l3 + d1 * 2.0 * l1 + d2 * l5
                 f2 = d0 * l4 + d1 * l5 + d2 * 2.0 * l2
-                ob[o + 3 + 3 * i] = (2.0 / h) * E[j, 0] * (zb[o + 3 + 3 * i] - D0[j, i, 0] - h * V0[j, i, 0]) + h * f0
-                ob[o + 4 + 3 * i] = (2.0 / h) * E[j, 1] * (zb[o + 4 + 3 * i] - D0[j, i, 1] - h * V0[j, i, 1]) + h * f1
-                ob[o + 5 + 3 * i] = (2.0 / h) * E[j, 2] * (zb[o + 5 + 3 * i] - D0[j, i, 2] - h * V0[j, i, 2]) + h * f2
+                ob[o + 3 + 3 * i] = (2.0 / h) * E[j, 0] * (zb[o + 3 + 3 * i] - h * V0[j, i, 0]) + h * f0
+                ob[o + 4 + 3 * i] = (2.0 / h) * E[j, 1] * (zb[o + 4 + 3 * i] - h * V0[j, i, 1]) + h * f1
+                ob[o + 5 + 3 * i] = (2.0 / h) * E[j, 2] * (zb[o + 5 + 3 * i] - h * V0[j, i, 2]) + h * f2
             # constraints D1^T D1 - I: (00, 11, 22, 01, 02, 12)
             for p in range(6):
                 if p < 3:
@@ -450,7 +509,7 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
                     a1, a2 = 0, 2
                 else:
                     a1, a2 = 1, 2
-                s = zb[o + 3 + a1] * zb[o + 3 + a2] + zb[o + 6 + a1] * zb[o + 6 + a2] + zb[o + 9 + a1] * zb[o + 9 + a2]
+                s = D1[j, 0, a1] * D1[j, 0, a2] + D1[j, 1, a1] * D1[j, 1, a2] + D1[j, 2, a1] * D1[j, 2, a2]
                 ob[o + 12 + p] = s - (1.0 if a1 == a2 else 0.0)
         for e in range(N1 - 1):
             oa, obb = 18 * e, 18 * (e + 1)
@@ -464,10 +523,10 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
             for i in range(3):
                 for k in range(3):
                     G0[i] += 0.5 * (D0[e, k, i] + D0[e + 1, k, i]) * (r0[e + 1, k] - r0[e, k]) / ds
-                    G1[i] += 0.5 * (zb[oa + 3 + 3 * k + i] + zb[obb + 3 + 3 * k + i]) * (zb[obb + k] - zb[oa + k]) / ds
+                    G1[i] += 0.5 * (D1[e, k, i] + D1[e + 1, k, i]) * (r1[e + 1, k] - r1[e, k]) / ds
                     for l in range(3):
                         R0[i, k] += D0[e, l, i] * D0[e + 1, l, k]
-                        R1[i, k] += zb[oa + 3 + 3 * l + i] * zb[obb + 3 + 3 * l + k]
+                        R1[i, k] += D1[e, l, i] * D1[e + 1, l, k]
             A0[0], A0[1], A0[2] = R0[2, 1] - R0[1, 2], R0[0, 2] - R0[2, 0], R0[1, 0] - R0[0, 1]
             A1[0], A1[1], A1[2] = R1[2, 1] - R1[1, 2], R1[0, 2] - R1[2, 0], R1[1, 0] - R1[0, 1]
             c0 = 1.0 + R0[0, 0] + R0[1, 1] + R0[2, 2]
@@ -492,14 +551,14 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
                 Dak = np.empty(3, dtype=z.dtype)
                 Dbk = np.empty(3, dtype=z.dtype)
                 for i in range(3):
-                    Dak[i] = 0.5 * (D0[e, k, i] + zb[oa + 3 + 3 * k + i])
-                    Dbk[i] = 0.5 * (D0[e + 1, k, i] + zb[obb + 3 + 3 * k + i])
+                    Dak[i] = 0.5 * (D0[e, k, i] + D1[e, k, i])
+                    Dbk[i] = 0.5 * (D0[e + 1, k, i] + D1[e + 1, k, i])
                 fn = 0.0 * c0
                 for i in range(3):
                     fn += 0.5 * (Dak[i] + Dbk[i]) * nn[i]
                 ob[obb + k] += h * fn
                 ob[oa + k] -= h * fn
-                drb = 0.5 * (r0[e + 1, k] + zb[obb + k]) - 0.5 * (r0[e, k] + zb[oa + k])
+                drb = 0.5 * (r0[e + 1, k] + r1[e + 1, k]) - 0.5 * (r0[e, k] + r1[e, k])
                 # F_Da[k, i] += 1/2 drb_k n_i + (Db_b Phi^T)[k, i];  F_Db[k, i] += 1/2 drb_k n_i + (Db_a Phi)[k, i]
                 for i in range(3):
                     g = 0.5 * drb * nn[i]
