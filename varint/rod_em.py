@@ -44,6 +44,7 @@ from .errors import SolverError
 CHI = np.array([1.0, 0.0, 0.0])
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 NV = 18  # unknowns per node: r (3), D (9, row-major Lambda), lambda (6)
+NC = 3  # with rod.constraint: the element forces mu_e (Gamma_e = chi), kept in the block of the element's first node
 
 
 def supports(model):
@@ -52,8 +53,6 @@ def supports(model):
         return "time.scheme: 'energy-momentum' covers the rod alone ([rod] without [fluid]/[wall]) in this version"
     rod = model.rod
     sc = model.scene
-    if rod.constrained:
-        return "time.scheme: 'energy-momentum' does not cover rod.constraint in this version"
     if rod.periodic:
         return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
     if np.any(rod.torque):
@@ -96,13 +95,19 @@ def potential(r, D, ds, Jd, Kd):
     return ds * np.sum(0.5 * np.sum(Jd * Om * Om, -1) + 0.5 * np.sum(Kd * dG * dG, -1), -1)
 
 
-def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd):
+def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, mu=None):
     """grad_d U(q_0, q_1) = (F_r (.., N+1, 3), F_D (.., N+1, 3, 3)) with
-    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a)."""
+    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a).
+
+    With ``mu`` (.., N, 3), the element forces of rod.constraint, also the constraint's force
+    ds G_Gamma(q_bar)^T mu (Gamma is bilinear: its midpoint derivative maps q_1 - q_0 exactly onto Gamma_1 - Gamma_0,
+    so this force does no work when both levels hold Gamma = chi): it enters exactly as a stress added to n."""
     Om0, Ga0, a0, c0 = strains(r0, D0, ds)
     Om1, Ga1, a1, c1 = strains(r1, D1, ds)
     rb, Db = 0.5 * (r0 + r1), 0.5 * (D0 + D1)
     n = Kd * (0.5 * (Ga0 + Ga1) - CHI)  # stress at the mean strain
+    if mu is not None:
+        n = n + mu
     m = Jd * 0.5 * (Om0 + Om1)
     # stretch-shear: ds n . dGamma, dGamma = 1/2 (Db_a + Db_b)^T (dr_b - dr_a)/ds + 1/2 (dD_a + dD_b)^T (rb_b - rb_a)/ds
     Fr = np.zeros(np.broadcast_shapes(r0.shape, r1.shape), dtype=np.result_type(r0, r1, D0, D1))
@@ -141,7 +146,12 @@ class RodEMStep:
         rod = model.rod
         self.rod, self.h, self.tol, self.max_iter = rod, float(h), tol, max_iter
         self.N, self.ds = rod.N, rod.ds
-        self.Jd, self.Kd = rod.section.J, rod.section.K
+        #: rod.constraint: Gamma_e = chi held at the levels by element forces mu_e (docs/theory.md §12a, "The
+        #: inextensible rod"); the stretch-shear energy is then absent (K = 0), as in the midpoint's §9a
+        self.constrained = bool(rod.constrained)
+        self.nv = NV + NC * self.constrained
+        self.Jd = rod.section.J
+        self.Kd = np.zeros(3) if self.constrained else rod.section.K
         self.m, self.E = director_masses(rod)
         self.r = rod.r0.copy()
         self.D = rod.Lam0.copy()
@@ -149,18 +159,25 @@ class RodEMStep:
         W = rod.omega0  # body angular velocity: d_i' = Lambda (W x e_i)
         self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
         self.lam = np.zeros((self.N + 1, 6))
+        self.mu = np.zeros((self.N + 1, NC))  # node N's entry is no element's: held at zero
+        if self.constrained:
+            miss = float(np.max(np.abs(strains(self.r, self.D, self.ds)[1] - CHI)))
+            if miss > 1e-9:
+                raise SolverError(f"rod.constraint: the initial configuration misses Gamma = chi by {miss:.1e}")
         # conservative loads, linear in r (their discrete gradient is exact): gravity on the lumped masses, the dead
         # tip force; U_ext = -sum f_j . r_j
         self.fext = self.m[:, None] * rod.g[None, :]
         self.fext[-1] += rod.force
         # supports: a pinned node keeps r (its rows become r_1 - r_0 = 0), a clamped one also its directors and its
-        # multipliers (its orthonormality then holds by itself)
-        self.fixed = np.zeros((self.N + 1, NV), dtype=bool)
+        # orthonormality multipliers (its orthonormality then holds by itself; its element's mu stays free)
+        self.fixed = np.zeros((self.N + 1, self.nv), dtype=bool)
         for node, kind in ((0, model.scene.rod.ends.s0), (self.N, model.scene.rod.ends.sL)):
             if kind in ("pinned", "clamped"):
                 self.fixed[node, :3] = True
             if kind == "clamped":
-                self.fixed[node, 3:] = True
+                self.fixed[node, 3:NV] = True
+        self.fixed[self.N, NV:] = True
+        self.free = not np.any(self.fixed[:, :NV])
         self.fixed = self.fixed.ravel()
         self.n = 0
         self.last = dict(iterations=0, jacobians=0, fallback=0)
@@ -175,8 +192,15 @@ class RodEMStep:
     # -- the step's equations ---------------------------------------------------------------------------
 
     def _unpack(self, z):
-        z = z.reshape(z.shape[:-1] + (self.N + 1, NV))
-        return z[..., :3], z[..., 3:12].reshape(z.shape[:-1] + (3, 3)), z[..., 12:]
+        """(dr, dD, lambda) of z; :meth:`_mu` gives the constraint's element forces."""
+        z = z.reshape(z.shape[:-1] + (self.N + 1, self.nv))
+        return z[..., :3], z[..., 3:12].reshape(z.shape[:-1] + (3, 3)), z[..., 12:NV]
+
+    def _mu(self, z):
+        """mu_e (.., N, 3) of z, or None without rod.constraint."""
+        if not self.constrained:
+            return None
+        return z.reshape(z.shape[:-1] + (self.N + 1, self.nv))[..., :-1, NV:]
 
     def residual(self, z):
         """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1 - r_0, D_1 - D_0, lambda) per node: the
@@ -185,7 +209,8 @@ class RodEMStep:
         h = self.h
         dr, dD, lam = self._unpack(z)
         r1, D1 = self.r + dr, self.D + dD
-        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd)
+        mu = self._mu(z)
+        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd, mu)
         Db = 0.5 * (self.D + D1)
         S = np.stack([np.stack([2 * lam[..., 0], lam[..., 3], lam[..., 4]], -1),
                       np.stack([lam[..., 3], 2 * lam[..., 1], lam[..., 5]], -1),
@@ -194,21 +219,26 @@ class RodEMStep:
         RD = (2.0 / h) * self.E[:, None, :] * (dD - h * self.V) + h * (FD + Db @ S)
         C = _T(D1) @ D1
         Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
-        out = np.concatenate([Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl], -1)
+        parts = [Rr, RD.reshape(RD.shape[:-2] + (9,)), Rl]
+        if mu is not None:  # the rows Gamma_e(q_1) - chi at element e's first node; node N's rows are replaced below
+            Rc = np.zeros(Rr.shape, dtype=np.result_type(Rr, mu))
+            Rc[..., :-1, :] = strains(r1, D1, self.ds)[1] - CHI
+            parts.append(Rc)
+        out = np.concatenate(parts, -1)
         out = out.reshape(out.shape[:-2] + (-1,))
         return self._loads_and_supports(z, out)
 
     def _loads_and_supports(self, z, out):
         """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by their increments z."""
         if np.any(self.fext):
-            o = out.reshape(out.shape[:-1] + (self.N + 1, NV))
+            o = out.reshape(out.shape[:-1] + (self.N + 1, self.nv))
             o[..., :3] -= self.h * self.fext
         if np.any(self.fixed):
             out[..., self.fixed] = z[..., self.fixed]
         return out
 
     def _kernel(self, z, out):
-        _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, out)
+        _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, self.nv, out)
         self._loads_and_supports(z, out)
 
     def residual_compiled(self, z):
@@ -219,24 +249,24 @@ class RodEMStep:
 
     def jacobian(self, z):
         """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 54 batched residuals."""
-        n = (self.N + 1) * NV
+        n = (self.N + 1) * self.nv
         if self._plan is None:
-            node = np.arange(n) // NV
-            comp = np.arange(n) % NV
+            node = np.arange(n) // self.nv
+            comp = np.arange(n) % self.nv
             rows, cols = [], []
             for j in range(self.N + 1):
                 for k in range(max(0, j - 1), min(self.N, j + 1) + 1):
-                    rr, cc = np.meshgrid(np.arange(j * NV, (j + 1) * NV), np.arange(k * NV, (k + 1) * NV), indexing="ij")
+                    rr, cc = np.meshgrid(np.arange(j * self.nv, (j + 1) * self.nv), np.arange(k * self.nv, (k + 1) * self.nv), indexing="ij")
                     rows.append(rr.ravel())
                     cols.append(cc.ravel())
             rows, cols = np.concatenate(rows), np.concatenate(cols)
             self._plan = (node, comp, rows, cols)
         node, comp, rows, cols = self._plan
         eps = 1e-30
-        P = np.zeros((3 * NV, n), dtype=complex)
+        P = np.zeros((3 * self.nv, n), dtype=complex)
         for col in range(3):
-            for c in range(NV):
-                P[col * NV + c, (node % 3 == col) & (comp == c)] = 1j * eps
+            for c in range(self.nv):
+                P[col * self.nv + c, (node % 3 == col) & (comp == c)] = 1j * eps
         zc = z[None, :] + P
         if self.compiled:
             Rc = np.empty_like(zc)
@@ -246,12 +276,13 @@ class RodEMStep:
             Rc = self.residual(zc).imag / eps  # (54, n)
         self.stats["residuals"] += 54
         # entry (row, col) comes from the batch of col's colour and component
-        b = (node[cols] % 3) * NV + comp[cols]
+        b = (node[cols] % 3) * self.nv + comp[cols]
         vals = Rc[b, rows]
         return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
 
-    def _pack(self, r, D, lam):
-        return np.concatenate([r, D.reshape(-1, 9), lam], 1).ravel()
+    def _pack(self, r, D, lam, mu=None):
+        parts = [r, D.reshape(-1, 9), lam] + ([self.mu if mu is None else mu] if self.constrained else [])
+        return np.concatenate(parts, 1).ravel()
 
     def body_angular_velocity(self):
         """W_j from the massive directors' velocities: Lambda^T d_i' = W x e_i for i = 2, 3 (d_1 carries no inertia,
@@ -282,14 +313,14 @@ class RodEMStep:
         (J(Q z) = Q J(z) Q^T for a rigid turn Q), so a factorisation is reused across steps of a spinning rod as the
         midpoint's body-frame unknowns are (docs/theory.md §9)."""
         D = self.D
-        blk = np.zeros((self.N + 1, NV, NV))
+        blk = np.zeros((self.N + 1, self.nv, self.nv))
         blk[:, :3, :3] = D
         for a in range(3):
             for b in range(3):
                 blk[:, 3 + 3 * a: 6 + 3 * a, 3 + 3 * b: 6 + 3 * b] = D[:, a, b, None, None] * np.eye(3)
-        blk[:, 12:, 12:] = np.eye(6)
+        blk[:, 12:, 12:] = np.eye(self.nv - 12)
         n = self.N + 1
-        return sp.bsr_matrix((blk, np.arange(n), np.arange(n + 1)), shape=(n * NV, n * NV)).tocsr()
+        return sp.bsr_matrix((blk, np.arange(n), np.arange(n + 1)), shape=(n * self.nv, n * self.nv)).tocsr()
 
     def _solve(self, z, chord):
         """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
@@ -298,7 +329,7 @@ class RodEMStep:
         positions to L, directors) it stops when the next update no longer shrinks."""
         sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
         T = self._body_frames()
-        qmask = np.tile(np.arange(NV) < 12, self.N + 1)
+        qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
         last = np.inf
         fresh = False
         for it in range(1, self.max_iter + 1):
@@ -319,6 +350,10 @@ class RodEMStep:
             if not np.isfinite(size):
                 raise SolverError(f"step {self.n + 1}: singular Newton matrix")
             if size >= last and last < 1e3 * self.tol:
+                if last > self.tol and chord and not fresh:
+                    self._lu = None  # a stale factorisation stalls above the tolerance: refresh it before calling it the floor
+                    last = np.inf
+                    continue
                 return z, it  # round-off floor reached: the update no longer shrinks
             if size > last and fresh and chord:
                 raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
@@ -355,11 +390,12 @@ class RodEMStep:
             else:
                 self._lu = None
                 raise exc
-        if np.any(self.fixed):  # held unknowns exactly at the level (Newton leaves them within round-off of it)
-            z[self.fixed] = 0.0
-        else:
+        z[self.fixed] = 0.0  # held unknowns exactly at the level (Newton leaves them within round-off of it)
+        if self.free:
             z = self._polish_rigid(z)
         dr, dD, lam = self._unpack(z)
+        if self.constrained:
+            self.mu = z.reshape(self.N + 1, self.nv)[:, NV:].copy()
         # the velocities from the increments themselves, not from differences of rounded positions: the momenta then
         # change by the residual's floor only (docs/theory.md §12a, "Momenta to round-off")
         self.v = 2.0 * dr / h - self.v
@@ -414,7 +450,7 @@ class RodEMStep:
         aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
         a, w = aw[:3], aw[3:]
         z = z.copy()
-        zz = z.reshape(self.N + 1, NV)
+        zz = z.reshape(self.N + 1, self.nv)
         zz[:, :3] += a + np.cross(w, rb)
         zz[:, 3:12] += np.swapaxes(np.cross(w, d), 1, 2).reshape(-1, 9)
         return z
@@ -468,7 +504,8 @@ from numba import njit  # noqa: E402
 
 
 @njit(cache=True, error_model="numpy")
-def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
+def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
+    """nv = 18 per node, or 21 with rod.constraint (mu_e at entries 18-20 of element e's first node)."""
     B, n = z.shape
     N1 = r0.shape[0]
     Da = np.empty((3, 3), dtype=z.dtype)
@@ -480,11 +517,13 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
         D1 = np.empty((N1, 3, 3), dtype=z.dtype)
         for j in range(N1):
             for k in range(3):
-                r1[j, k] = r0[j, k] + zb[18 * j + k]
+                r1[j, k] = r0[j, k] + zb[nv * j + k]
                 for i in range(3):
-                    D1[j, k, i] = D0[j, k, i] + zb[18 * j + 3 + 3 * k + i]
+                    D1[j, k, i] = D0[j, k, i] + zb[nv * j + 3 + 3 * k + i]
         for j in range(N1):
-            o = 18 * j
+            o = nv * j
+            for k in range(18, nv):
+                ob[o + k] = 0.0  # the constraint rows are the elements' (below); node N's is no element's
             for k in range(3):
                 ob[o + k] = (2.0 / h) * m[j] * (zb[o + k] - h * v0[j, k])
             l0, l1, l2, l3, l4, l5 = zb[o + 12], zb[o + 13], zb[o + 14], zb[o + 15], zb[o + 16], zb[o + 17]
@@ -512,7 +551,7 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
                 s = D1[j, 0, a1] * D1[j, 0, a2] + D1[j, 1, a1] * D1[j, 1, a2] + D1[j, 2, a1] * D1[j, 2, a2]
                 ob[o + 12 + p] = s - (1.0 if a1 == a2 else 0.0)
         for e in range(N1 - 1):
-            oa, obb = 18 * e, 18 * (e + 1)
+            oa, obb = nv * e, nv * (e + 1)
             # level strains: Gamma, a, c at both levels
             G0 = np.zeros(3, dtype=z.dtype)
             G1 = np.zeros(3, dtype=z.dtype)
@@ -536,6 +575,9 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, out):
             mm = np.empty(3, dtype=z.dtype)
             for i in range(3):
                 nn[i] = Kd[i] * (0.5 * (G0[i] + G1[i]) - (1.0 if i == 0 else 0.0))
+                if nv > 18:  # rod.constraint: its force is a stress mu_e added to n; its rows Gamma_e(q_1) - chi
+                    nn[i] += zb[oa + 18 + i]
+                    ob[oa + 18 + i] = G1[i] - (1.0 if i == 0 else 0.0)
                 mm[i] = Jd[i] * 0.5 * (2.0 * A0[i] / (c0 * ds) + 2.0 * A1[i] / (c1 * ds))
             beta = 0.0 * c0
             for i in range(3):

@@ -593,8 +593,6 @@ class _Validator:
         if sc.time.scheme == "energy-momentum":  # varint/rod_em.py, docs/theory.md §12a: what this version covers
             if sc.fluid is not None or sc.wall is not None:
                 self.bad("time.scheme", "'energy-momentum' covers the rod alone (no [fluid] or [wall]) in this version")
-            elif rod.constraint != "none":
-                self.bad("time.scheme", "'energy-momentum' does not cover rod.constraint in this version")
             elif rod.ends.s0 == "periodic":
                 self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
             elif any((rod.load or {}).get("torque") or ()):
