@@ -85,11 +85,11 @@ def zero_crossing_frequency(t, y):
     return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
 
 
-def tip_frequency(model, steps):
+def tip_frequency(model, steps, scheme=None):
     """Angular frequency of a rod's tip motion in y over ``steps`` steps, from its zero crossings."""
     from varint import Simulation
 
-    sim = Simulation(model)
+    sim = Simulation(model, scheme=scheme)
     t, y = np.empty(steps), np.empty(steps)
     for i in range(steps):
         sim.step()

@@ -15,7 +15,7 @@ from varint import Simulation, build_model, parse_scene
 from varint.errors import SceneError
 from varint.lie import cay
 from varint.rod import unpack_level
-from varint.rod_em import RodEMStep, discrete_gradient, potential, supports
+from varint.rod_em import RodEMStep, discrete_gradient, potential, strains, supports
 
 
 def _scene(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-3, scheme="midpoint", gravity=None, **extra):
@@ -91,25 +91,32 @@ def test_discrete_gradient_annihilates_rigid_motions():
         assert np.max(np.abs(torque)) < 1e-13 * scale * (N + 1)
 
 
-def test_residual_energy_and_momentum_identities():
-    """For ANY unknowns z (not only a solution): H_1 - H_0 = (dq/h).R_q(z) - lambda.(g(q_1) - g(q_0)),
-    P_1 - P_0 = sum R_r, J_1 - J_0 = sum rbar x R_r + Dbar_i x R_D,i, with v_1 = 2 dq/h - v_0.  So a step
-    that solves R = 0 changes E by exactly zero (g(q_0) = 0) and P, J by zero."""
-    s = RodEMStep(_scene(h=0.01), 0.01)
+@pytest.mark.parametrize("constraint", ["none", "inextensible_unshearable"])
+def test_residual_energy_and_momentum_identities(constraint):
+    """For ANY unknowns z (not only a solution): H_1 - H_0 = (dq/h).R_q(z) - lambda.(g(q_1) - g(q_0))
+    [- ds mu.(Gamma(q_1) - Gamma(q_0)) with rod.constraint], P_1 - P_0 = sum R_r,
+    J_1 - J_0 = sum rbar x R_r + Dbar_i x R_D,i, with v_1 = 2 dq/h - v_0.  So a step that solves R = 0 changes E by
+    exactly zero (g(q_0) = 0, Gamma(q_0) = chi) and P, J by zero."""
+    s = RodEMStep(_scene(h=0.01, constraint=constraint), 0.01)
     rng = np.random.default_rng(3)
     h, N = s.h, s.N
     for _ in range(3):
         r1 = s.r + h * s.v + 0.01 * rng.normal(size=s.r.shape)
         D1 = s.D + h * s.V + 0.01 * rng.normal(size=s.D.shape)
         lam = rng.normal(size=(N + 1, 6))
-        z = s._pack(r1 - s.r, D1 - s.D, lam)  # the unknowns are the increments
-        R = s.residual(z).reshape(N + 1, 18)
+        mu = rng.normal(size=(N + 1, 3))
+        mu[-1] = 0.0
+        z = s._pack(r1 - s.r, D1 - s.D, lam, mu)  # the unknowns are the increments
+        R = s.residual(z).reshape(N + 1, s.nv)
         Rr, RD = R[:, :3], R[:, 3:12].reshape(N + 1, 3, 3)
-        t = RodEMStep(_scene(h=0.01), 0.01)
+        t = RodEMStep(_scene(h=0.01, constraint=constraint), 0.01)
         t.r, t.D, t.v, t.V = r1, D1, 2 * (r1 - s.r) / h - s.v, 2 * (D1 - s.D) / h - s.V
         g0 = np.array([(s.D[:, :, i] * s.D[:, :, j]).sum(1) - (i == j) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]).T
         dH = t.energy() - s.energy()
-        pred = np.sum((r1 - s.r) / h * Rr) + np.sum((D1 - s.D) / h * RD) - np.sum(lam * (R[:, 12:] - g0))
+        pred = np.sum((r1 - s.r) / h * Rr) + np.sum((D1 - s.D) / h * RD) - np.sum(lam * (R[:, 12:18] - g0))
+        if s.constrained:  # the constraint rows are Gamma(q_1) - chi; Gamma(q_0) = chi
+            assert np.max(np.abs(strains(s.r, s.D, s.ds)[1] - [1, 0, 0])) < 1e-14
+            pred -= s.ds * np.sum(mu[:-1] * R[:-1, 18:])
         assert abs(dH - pred) < 1e-12 * (abs(s.energy()) + np.sum(np.abs((D1 - s.D) / h * RD)))
         assert np.allclose(t.linear_momentum() - s.linear_momentum(), Rr.sum(0), rtol=0, atol=1e-13)
         rb, Db = 0.5 * (s.r + r1), 0.5 * (s.D + D1)
@@ -164,6 +171,26 @@ def test_momenta_to_round_off_over_a_thousand_hard_steps():
     assert dE < 1e-12
 
 
+def test_the_inextensible_rod_where_the_constrained_midpoint_fails():
+    """docs/theory.md §9a: with rod.constraint the midpoint rod still fails on the hard case spinning at 8 rad/s at
+    h = 8 ms (Newton fails at step 274: the unresolved torsional mode).  The energy-momentum step with the constraint
+    (docs/theory.md §12a, "The inextensible rod") runs 300 steps there with Gamma = chi, E, P and J to round-off."""
+    h = 8e-3
+    m = _scene(n=50, sec=_pyelastica(), curvature=(0, 0, 2.0), spin=(0, 0, 8.0), h=h, constraint="inextensible_unshearable")
+    s = RodEMStep(m, h)
+    E0, P0, J0 = s.energy(), s.linear_momentum(), s.angular_momentum()
+    Js = np.linalg.norm(J0)
+    worst = con = 0.0
+    for _ in range(300):
+        s.step()
+        worst = max(worst, abs(s.energy() / E0 - 1))
+        con = max(con, float(np.max(np.abs(strains(s.r, s.D, s.ds)[1] - [1, 0, 0]))))
+    assert worst < 1e-12 and con < 1e-12, (worst, con)
+    assert np.max(np.abs(s.linear_momentum() - P0)) < 1e-14 * Js  # L = 1 m
+    assert np.max(np.abs(s.angular_momentum() - J0)) < 1e-14 * Js
+    assert s.orthonormality() < 1e-13
+
+
 def test_order_two_against_the_midpoint_scheme():
     """Both schemes discretise the same semi-discrete rod (same lumped kinetic energy, same potential): the
     energy-momentum positions at T converge at order 2 to those of the §9 midpoint scheme at T/2560 (8x finer than
@@ -205,12 +232,13 @@ def test_scene_key_runs_and_refuses():
             build_model(parse_scene(text))
 
 
-def test_compiled_residual_equals_the_reference():
+@pytest.mark.parametrize("constraint", ["none", "inextensible_unshearable"])
+def test_compiled_residual_equals_the_reference(constraint):
     """The compiled kernel (iterations and complex-step Jacobian) computes RodEMStep.residual, real and complex."""
-    s = RodEMStep(_scene(n=6, h=0.01), 0.01)
+    s = RodEMStep(_scene(n=6, h=0.01, constraint=constraint), 0.01)
     s.step()
     rng = np.random.default_rng(4)
-    z = s._predict() + 1e-2 * rng.normal(size=(s.N + 1) * 18)
+    z = s._predict() + 1e-2 * rng.normal(size=(s.N + 1) * s.nv)
     ref = s.residual(z)
     assert np.max(np.abs(s.residual_compiled(z) - ref)) < 1e-14 * np.max(np.abs(ref))
     zc = z[None, :] + 1e-30j * rng.normal(size=(3, z.size))
