@@ -175,7 +175,7 @@ SCHEMA = MappingProxyType({
         _pos("step", "s", "time step h"),
         _pos("end", "s", "final time"),
         Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': the rod "
-            "alone (no tip torque) with energy and momenta conserved at any step (docs/theory.md §12a)",
+            "alone (no tip torque; shearable or rod.constraint) with energy and momenta conserved at any step (docs/theory.md §12a)",
             choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
