@@ -247,8 +247,11 @@ class RodEMStep:
         self._kernel(np.ascontiguousarray(z, dtype=np.float64)[None, :], out)
         return out[0]
 
-    def jacobian(self, z):
-        """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 54 batched residuals."""
+    def jacobian(self, z, body=False):
+        """Sparse Jacobian by complex step (exact to round-off), 3-node colouring: 3 nv batched residuals.  With
+        ``body``, T^T J T (Newton's matrix in the level's body frames, :meth:`_body_frames`): the perturbations are
+        taken along T's columns and the residuals' rows turned by T^T (T is node-block diagonal, so the colouring
+        still separates the columns), instead of two sparse products."""
         n = (self.N + 1) * self.nv
         if self._plan is None:
             node = np.arange(n) // self.nv
@@ -267,6 +270,9 @@ class RodEMStep:
         for col in range(3):
             for c in range(self.nv):
                 P[col * self.nv + c, (node % 3 == col) & (comp == c)] = 1j * eps
+        if body:
+            for b in range(P.shape[0]):
+                P[b] = 1j * eps * self._rotate(P[b].imag / eps)
         zc = z[None, :] + P
         if self.compiled:
             Rc = np.empty_like(zc)
@@ -274,7 +280,9 @@ class RodEMStep:
             Rc = Rc.imag / eps
         else:
             Rc = self.residual(zc).imag / eps  # (54, n)
-        self.stats["residuals"] += 54
+        self.stats["residuals"] += P.shape[0]
+        if body:
+            Rc = np.array([self._rotate(row, transpose=True) for row in Rc])
         # entry (row, col) comes from the batch of col's colour and component
         b = (node[cols] % 3) * self.nv + comp[cols]
         vals = Rc[b, rows]
@@ -322,13 +330,18 @@ class RodEMStep:
         n = self.N + 1
         return sp.bsr_matrix((blk, np.arange(n), np.arange(n + 1)), shape=(n * self.nv, n * self.nv)).tocsr()
 
+    def _rotate(self, x, transpose=False):
+        """T x (or T^T x) for the block-diagonal T of :meth:`_body_frames`, by node blocks instead of a sparse product."""
+        out = np.empty_like(x)
+        _k_rotate(self.D, x, self.nv, transpose, out)
+        return out
+
     def _solve(self, z, chord):
         """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
         than 1/2; a fresh one that does not contract ends the attempt), or full Newton (``chord=False``: a fresh
         Jacobian every iteration; the update may grow before it converges).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
         positions to L, directors) it stops when the next update no longer shrinks."""
         sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
-        T = self._body_frames()
         qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
         last = np.inf
         fresh = False
@@ -339,13 +352,13 @@ class RodEMStep:
                 raise SolverError(f"step {self.n + 1}: non-finite residual")
             if self._lu is None or not chord:
                 try:
-                    self._lu = spla.splu((T.T @ self.jacobian(z) @ T).tocsc())
+                    self._lu = spla.splu(self.jacobian(z, body=True))
                 except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
                     self._lu = None
                     raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
                 self.stats["jacobians"] += 1
                 fresh = True
-            dz = T @ self._lu.solve(T.T @ -R)
+            dz = self._rotate(self._lu.solve(self._rotate(-R, transpose=True)))
             size = float(np.max(np.abs(dz[qmask]) / sc))
             if not np.isfinite(size):
                 raise SolverError(f"step {self.n + 1}: singular Newton matrix")
@@ -508,13 +521,23 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
     """nv = 18 per node, or 21 with rod.constraint (mu_e at entries 18-20 of element e's first node)."""
     B, n = z.shape
     N1 = r0.shape[0]
-    Da = np.empty((3, 3), dtype=z.dtype)
+    # scratch, allocated once per call (not per element: the allocations were a third of the kernel's time)
+    r1 = np.empty((N1, 3), dtype=z.dtype)
+    D1 = np.empty((N1, 3, 3), dtype=z.dtype)
+    G0 = np.empty(3, dtype=z.dtype)
+    G1 = np.empty(3, dtype=z.dtype)
+    A0 = np.empty(3, dtype=z.dtype)
+    A1 = np.empty(3, dtype=z.dtype)
+    R0 = np.empty((3, 3), dtype=z.dtype)
+    R1 = np.empty((3, 3), dtype=z.dtype)
+    nn = np.empty(3, dtype=z.dtype)
+    mm = np.empty(3, dtype=z.dtype)
+    Dak = np.empty(3, dtype=z.dtype)
+    Dbk = np.empty(3, dtype=z.dtype)
     for b in range(B):
         zb = z[b]
         ob = out[b]
         # the level-1 configuration from the increments (the unknowns; see RodEMStep.residual)
-        r1 = np.empty((N1, 3), dtype=z.dtype)
-        D1 = np.empty((N1, 3, 3), dtype=z.dtype)
         for j in range(N1):
             for k in range(3):
                 r1[j, k] = r0[j, k] + zb[nv * j + k]
@@ -553,12 +576,10 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
         for e in range(N1 - 1):
             oa, obb = nv * e, nv * (e + 1)
             # level strains: Gamma, a, c at both levels
-            G0 = np.zeros(3, dtype=z.dtype)
-            G1 = np.zeros(3, dtype=z.dtype)
-            A0 = np.zeros(3, dtype=z.dtype)
-            A1 = np.zeros(3, dtype=z.dtype)
-            R0 = np.zeros((3, 3), dtype=z.dtype)
-            R1 = np.zeros((3, 3), dtype=z.dtype)
+            G0[:] = 0.0
+            G1[:] = 0.0
+            R0[:, :] = 0.0
+            R1[:, :] = 0.0
             for i in range(3):
                 for k in range(3):
                     G0[i] += 0.5 * (D0[e, k, i] + D0[e + 1, k, i]) * (r0[e + 1, k] - r0[e, k]) / ds
@@ -571,8 +592,6 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
             c0 = 1.0 + R0[0, 0] + R0[1, 1] + R0[2, 2]
             c1 = 1.0 + R1[0, 0] + R1[1, 1] + R1[2, 2]
             cc = c0 * c1
-            nn = np.empty(3, dtype=z.dtype)
-            mm = np.empty(3, dtype=z.dtype)
             for i in range(3):
                 nn[i] = Kd[i] * (0.5 * (G0[i] + G1[i]) - (1.0 if i == 0 else 0.0))
                 if nv > 18:  # rod.constraint: its force is a stress mu_e added to n; its rows Gamma_e(q_1) - chi
@@ -590,8 +609,6 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
             P10, P11, P12 = al2, beta, -al0
             P20, P21, P22 = -al1, al0, beta
             for k in range(3):  # spatial row k
-                Dak = np.empty(3, dtype=z.dtype)
-                Dbk = np.empty(3, dtype=z.dtype)
                 for i in range(3):
                     Dak[i] = 0.5 * (D0[e, k, i] + D1[e, k, i])
                     Dbk[i] = 0.5 * (D0[e + 1, k, i] + D1[e + 1, k, i])
@@ -615,3 +632,22 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
                         pb = Dak[0] * P02 + Dak[1] * P12 + Dak[2] * P22
                     ob[oa + 3 + 3 * k + i] += h * (g + pa)
                     ob[obb + 3 + 3 * k + i] += h * (g + pb)
+
+
+@njit(cache=True)
+def _k_rotate(D, x, nv, transpose, out):
+    """out = T x or T^T x, T = blockdiag(D_j, D_j (x) I_3, I) per node (RodEMStep._body_frames)."""
+    for j in range(D.shape[0]):
+        o = nv * j
+        for k in range(nv):
+            out[o + k] = x[o + k]
+        for a in range(3):
+            s = 0.0
+            for b in range(3):
+                s += (D[j, b, a] if transpose else D[j, a, b]) * x[o + b]
+            out[o + a] = s
+            for c in range(3):
+                s = 0.0
+                for b in range(3):
+                    s += (D[j, b, a] if transpose else D[j, a, b]) * x[o + 3 + 3 * b + c]
+                out[o + 3 + 3 * a + c] = s
