@@ -474,15 +474,44 @@ class RodEMStep:
         from .rod import pack_level
         from .stepper import State
 
-        if st.n != self.n:
-            raise SolverError("time.scheme: 'energy-momentum' cannot restart from a checkpoint in this version")
+        if st.n != self.n:  # a resumed run: the step's own state travels in the checkpoint's data (state_data)
+            if not st.data or "em_r" not in st.data:
+                raise SolverError("time.scheme: 'energy-momentum' cannot restart from this checkpoint (it lacks the "
+                                  "step's director velocities: written by an older varint)")
+            self.restore(st.data, st.n)
         self.step()
         q, p = st.q.copy(), st.p.copy()
         q[model.rod_q] = pack_level(self.D, self.r)
         Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),
                                                       np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum(1))
         p[model.rod_p] = np.concatenate([(self.m[:, None] * self.v).ravel(), Pi.ravel()])
-        return State(self.n, self.n * self.h, q, p, st.lam, st.v, st.q.copy(), None)
+        data = dict(st.data or {})
+        data.update(self.state_data())
+        return State(self.n, self.n * self.h, q, p, st.lam, st.v, st.q.copy(), data)
+
+    #: the step's own state, beyond (q, p): the director velocities V (the level momenta keep only their skew part,
+    #: Pi), the multipliers (Newton's start) and the last increment (the predictor)
+    _STATE = ("r", "D", "v", "V", "lam", "mu")
+
+    def state_data(self):
+        """The step's state as flat arrays for a checkpoint (``State.data``; varint/io.py writes them)."""
+        data = {f"em_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
+        if self._prev is not None:
+            data["em_prev_dr"], data["em_prev_D"] = self._prev[0].ravel(), self._prev[1].ravel()
+        return data
+
+    def restore(self, data, n):
+        """Continue from :meth:`state_data` at level n (a resumed run).  The kept factorisation is dropped: the
+        resumed run differs from the uninterrupted one by Newton's round-off only."""
+        for k in self._STATE:
+            cur = getattr(self, k)
+            setattr(self, k, np.array(data[f"em_{k}"], dtype=float).reshape(cur.shape))
+        self._prev = None
+        if "em_prev_dr" in data:
+            self._prev = (np.array(data["em_prev_dr"], dtype=float).reshape(self.r.shape),
+                          np.array(data["em_prev_D"], dtype=float).reshape(self.D.shape))
+        self.n = int(n)
+        self._lu = None
 
     def monitors(self):
         """The conserved energy (kinetic in the director velocities) and momenta, for the stepper's monitors."""
