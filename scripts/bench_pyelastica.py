@@ -51,16 +51,22 @@ def reference(E):
 # ----------------------------------------------------------------------------- varint
 
 
-def varint_run(E, h, periods, w_ref):
+def varint_cantilever(E, h, n_el=N_EL):
+    """The planar varint model of the cantilever at n_el elements and step h, released from the mode shape."""
     sec = solid_section(E, RAD, RHO)  # the same section as the tests' PyElastica benchmark rod
-    d = {"title": "cantilever", "tube": {"length": L, "nodes": N_EL + 1, "radius": RAD},
+    d = {"title": "cantilever", "tube": {"length": L, "nodes": n_el + 1, "radius": RAD},
          "rod": dict(sec, dimension=2, measure="reference", ends={"s0": "clamped", "sL": "free"}),
          "time": {"step": h, "end": 1.0}}
     model = build_model(parse_scene(to_toml(d)))
-    s = np.linspace(0.0, L, N_EL + 1)
+    s = np.linspace(0.0, L, n_el + 1)
     y, dy = mode_shape(s)
     model.rod.set_configuration(cay(np.stack([np.zeros_like(s), np.zeros_like(s), 2 * np.tan(0.5 * np.arctan(dy))], axis=1)),
                             np.stack([s, y, np.zeros_like(s)], axis=1))
+    return model
+
+
+def varint_run(E, h, periods, w_ref):
+    model = varint_cantilever(E, h)
     sim = Simulation(model)
     n = int(round(periods * 2 * math.pi / w_ref / h))
     t, tip, E_ = np.empty(n), np.empty(n), np.empty(n)
@@ -77,16 +83,17 @@ def varint_run(E, h, periods, w_ref):
 # ----------------------------------------------------------------------------- PyElastica
 
 
-def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None):
+def pyelastica_cantilever(E, n_el=N_EL):
+    """PyElastica's cantilever at n_el elements, released from the mode shape, finalised: (simulator, rod)."""
     import elastica as ea
 
     class Sim(ea.BaseSystemCollection, ea.Constraints):
         pass
 
     sim = Sim()
-    rod = ea.CosseratRod.straight_rod(N_EL, np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), L, RAD, RHO,
+    rod = ea.CosseratRod.straight_rod(n_el, np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), L, RAD, RHO,
                                       youngs_modulus=E, shear_modulus=E / 1.5)
-    s = np.linspace(0.0, L, N_EL + 1)
+    s = np.linspace(0.0, L, n_el + 1)
     y, _ = mode_shape(s)
     rod.position_collection[1, :] = y
     # directors: d3 along each element's chord, d1 = +z (out of plane), d2 = d3 x d1
@@ -101,6 +108,13 @@ def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None):
     sim.append(rod)
     sim.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
     sim.finalize()
+    return sim, rod
+
+
+def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None, n_el=N_EL):
+    import elastica as ea
+
+    sim, rod = pyelastica_cantilever(E, n_el)
     stepper = ea.PositionVerlet()
     n = check_only_steps or int(round(periods * 2 * math.pi / w_ref / dt))
     every = max(1, n // 4000)
@@ -122,10 +136,10 @@ def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None):
     return np.array(ts), np.array(tips), np.array(Es), wall
 
 
-def largest_stable_dt(E, w_ref, lo=1e-6, hi=1e-3, steps=3000):
+def largest_stable_dt(E, w_ref, lo=1e-6, hi=1e-3, steps=3000, n_el=N_EL):
     for _ in range(12):
         mid = math.sqrt(lo * hi)
-        if pyelastica_run(E, mid, 0, w_ref, check_only_steps=steps):
+        if pyelastica_run(E, mid, 0, w_ref, check_only_steps=steps, n_el=n_el):
             lo = mid
         else:
             hi = mid
