@@ -140,10 +140,11 @@ def test_chart_kernel_is_steps_point():
     z = fast.predict(st) + 1e-3 * np.random.default_rng(3).standard_normal(fast.nz)
     pt = Step(model, sim.h).point(st.q, z)
     Lam, r, _ = fast._level(st.q)
-    xi, r_1 = np.zeros((model.N + 1, 3)), np.zeros((model.N + 1, 3))
-    _k_chart(Lam, r, z, fast.idx, True, xi, r_1)
+    xi, r_1, dr = np.zeros((model.N + 1, 3)), np.zeros((model.N + 1, 3)), np.zeros((model.N + 1, 3))
+    _k_chart(Lam, r, z, fast.idx, True, xi, r_1, dr)
     assert np.array_equal(xi, pt.xi)
     assert np.allclose(r_1, pt.r_1, rtol=0, atol=4 * np.finfo(float).eps)
+    assert np.allclose(dr, pt.r_1 - pt.r_n, rtol=0, atol=4 * np.finfo(float).eps)
 
 
 def test_floor_kernel():

@@ -151,8 +151,10 @@ def _k_band_solve(ab, kl, ku, ipiv, b):
 
 
 @njit(cache=True, error_model="numpy")
-def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
-    """(xi, r_1) of the step unknowns z: u = 0 off the mask, r_1 = r_n + Lambda_n b (Step.point)."""
+def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr):
+    """(xi, r_1, dr) of the step unknowns z: u = 0 off the mask, dr = Lambda_n b, r_1 = r_n + dr (Step.point).  The
+    increments dr are kept: the kinetic terms take the velocities from them, not from the difference r_1 - r_n of
+    rounded positions (docs/theory.md §9, "Momenta to round-off")."""
     n1 = Lam_n.shape[0]
     for j in range(n1):
         jj = 0 if (periodic and j == n1 - 1) else j  # a periodic rod's image node moves with node 0
@@ -160,23 +162,37 @@ def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
         b1 = z[idx[jj, 1]] if idx[jj, 1] >= 0 else 0.0
         b2 = z[idx[jj, 2]] if idx[jj, 2] >= 0 else 0.0
         for i in range(3):
-            r_1[j, i] = r_n[j, i] + Lam_n[j, i, 0] * b0 + Lam_n[j, i, 1] * b1 + Lam_n[j, i, 2] * b2
+            dr[j, i] = Lam_n[j, i, 0] * b0 + Lam_n[j, i, 1] * b1 + Lam_n[j, i, 2] * b2
+            r_1[j, i] = r_n[j, i] + dr[j, i]
             k = idx[jj, 3 + i]
             xi[j, i] = z[k] if k >= 0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")
-def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev, D, M, V, e1, e2):
+def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev, D, M, V, e1, e2):
     """D = D1 (lev 0) or D2 (lev 1) of L_d: the element gradients summed, and the tip force's node piece
-    (varint.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular."""
+    (varint.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular.
+
+    Each element is evaluated in coordinates centred on its node a at level n: r_a^n = 0, r_b^n = r_b^n - r_a^n,
+    r_a^{n+1} = dr_a, r_b^{n+1} = (r_b^n - r_a^n) + dr_b.  L_d's gradient depends on positions only through
+    differences (the gravity and tip-force pieces are constant), so this is the same function; but the element's
+    velocities r^{n+1} - r^n are then dr_a exactly and dr_b to eps ds (not eps |r|, the rounding of the absolute
+    positions, which set the floor of the step's momentum balance; docs/theory.md §9, "Momenta to round-off").
+    ``V`` (20, 3): the element kernel's scratch (rows 0-15) and the element's four positions (rows 16-19)."""
     N = Lam_n.shape[0] - 1
     for j in range(N + 1):
         for i in range(6):
             D[j, i] = 0.0
+    ra0, rb0, ra1, rb1 = V[16], V[17], V[18], V[19]
     for e in range(N):
+        for i in range(3):
+            ra0[i] = 0.0
+            rb0[i] = r_n[e + 1, i] - r_n[e, i]
+            ra1[i] = dr[e, i]
+            rb1[i] = rb0[i] + dr[e + 1, i]
         # _k_cay / _k_cay_inv divide by 4 + |w|^2 and 1 + tr: a pi rotation raises ZeroDivisionError in numba
-        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
-                   xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev, lev + 1, e1, e2, M, V)
+        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], ra0, rb0,
+                   xi[e], xi[e + 1], ra1, rb1, lev, lev + 1, e1, e2, M, V)
         src = e1 if lev == 0 else e2
         for i in range(6):
             D[e, i] += src[i]
@@ -188,12 +204,12 @@ def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n
 
 @njit(cache=True, error_model="numpy")
 def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
-                xi, r_1, D, M, V, e1, e2, out):
+                xi, r_1, dr, D, M, V, e1, e2, out):
     """The step residual (Step.residual) at z, written into out in band order (out[bpos[k]] = R_k).
     Returns False when it is not finite."""
     N = Lam_n.shape[0] - 1
-    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, 0, D, M, V, e1, e2)
+    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
+    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, D, M, V, e1, e2)
     for j in range(N + 1):
         for i in range(6):
             D[j, i] += pin[j, i]
@@ -308,7 +324,7 @@ def _k_stats(stats, converged, iterations, n_res, n_jac, err, factor_valid, code
 
 @njit(cache=True, error_model="numpy")
 def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, kl, ku,
-            scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab, ipiv,
+            scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab, ipiv,
             have_factor, stats):
     """Newton's chord iteration of varint.newton.newton on the step residual, all compiled.
 
@@ -328,7 +344,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     n_jac = 0
     jac_iter = -1  # -1: inherited factorisation
     if not have_factor:
-        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
         ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku,
                               cs, col, ab)
         n_jac += 1
@@ -345,7 +361,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     polished = 0
     while it < max_iter + polished:
         ok = _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
-                         xi, r_1, D, M, V, e1, e2, rb)
+                         xi, r_1, dr, D, M, V, e1, e2, rb)
         n_res += 1
         if not ok:
             _k_stats(stats, 0, it, n_res, n_jac, np.inf, 1, 1)
@@ -403,7 +419,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
                     _k_stats(stats, 0, it, n_res, n_jac, err, 1, 2)
                     return
                 if jac_iter < it:
-                    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+                    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
                     ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos,
                                           kl, ku, cs, col, ab)
                     n_jac += 1
@@ -421,14 +437,14 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
 
 @njit(cache=True, error_model="numpy")
 def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z, idx,
-              xi, r_1, D, M, V, e1, e2, C, q1, p1, v1, turn):
+              xi, r_1, dr, D, M, V, e1, e2, C, q1, p1, v1, turn):
     """The accepted step's new level: q_{n+1} (Step.retract: frames re-orthonormalised by one polar Newton step, a
     periodic image node, the floating origin on its binary grid), pi_{n+1} = fold(D2 L_d + f^+) (Step.momentum_plus)
     and the predictor's data v = (Lambda_n^T (r_1 - r_n), xi) (Simulation._step_velocity).  turn[0:2] = the largest
     |xi| and its node."""
     N = Lam_n.shape[0] - 1
     n1 = N + 1
-    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
     turn[0] = 0.0
     turn[1] = 0.0
     for j in range(n1):
@@ -436,7 +452,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         if t > turn[0]:
             turn[0] = t
             turn[1] = j
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, 1, D, M, V, e1, e2)
+    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, D, M, V, e1, e2)
     # the new frames: Lambda_n cay(xi), then one polar Newton step L (3 I - L^T L) / 2 (varint.rod.reorthonormalize)
     L1 = q1[3 * n1:12 * n1].reshape(n1, 3, 3)
     T = M[4]  # (element scratch, free here)
@@ -496,7 +512,7 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
     inertia, Jd, Kd, g, force, torque, period = cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6]
     paper, periodic, floating = ci[0] != 0, ci[1] != 0, ci[2] != 0
     z, dz, rb = wz[0], wz[1], wz[2]
-    xi, r_1 = wn[0], wn[1]
+    xi, r_1, dr = wn[0], wn[1], wn[2]
     D, pin = wd[0], wd[1]
     for k in range(z.shape[0]):
         z[k] = 2.0 * v[vsel[k]] - vprev[vsel[k]] if ci[8] != 0 else v[vsel[k]]
@@ -508,7 +524,7 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
     cs = (cM[0:5], cV[0:16], ce[0], ce[1], cM[5], cM[6], cV[16], cV[17], cV[18], cV[19], cV[20], cV[21])
     M, V, e1, e2 = rM[0:5], rV, re[0], re[1]
     _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, ci[3],
-            ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab,
+            ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab,
             ipiv, ci[7] != 0, stats)
     ci[7] = 1 if stats[5] != 0.0 else 0
     if stats[7] > 0.0:  # a measured round-off floor: recalibrate every 64 steps
@@ -519,7 +535,7 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
     if stats[0] == 0.0:
         return
     _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z,
-              idx, xi, r_1, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
+              idx, xi, r_1, dr, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
 
 
 class FastRodStep:
@@ -592,10 +608,10 @@ class FastRodStep:
         self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
                             0, 0], dtype=np.int64)
         self.wz = np.zeros((3, nz))
-        self.wn = np.zeros((2, n1, 3))
+        self.wn = np.zeros((3, n1, 3))  # xi, r_1, dr
         self.wd = np.zeros((2, n1, 6))
         self.rM = np.zeros((6, 3, 3))
-        self.rV = np.zeros((16, 3))
+        self.rV = np.zeros((20, 3))  # the element kernel's scratch and an element's four positions
         self.re = np.zeros((2, 12))
         c = np.complex128
         self.cM = np.zeros((7, 3, 3), c)
@@ -646,7 +662,7 @@ class FastRodStep:
         out = np.zeros(self.nz)
         h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
         _k_residual(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, pin,
-                    np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wd[0],
+                    np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wn[2], self.wd[0],
                     self.rM[:5], self.rV, self.re[0], self.re[1], out)
         return out[self.bpos]
 
@@ -655,7 +671,7 @@ class FastRodStep:
         Lam, r, _ = self._level(q0)
         z = np.ascontiguousarray(z, dtype=float)
         h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
-        _k_chart(Lam, r, z, self.idx, periodic, self.wn[0], self.wn[1])
+        _k_chart(Lam, r, z, self.idx, periodic, self.wn[0], self.wn[1], self.wn[2])
         ab = np.zeros_like(self.ab)
         cs = (self.cM[0:5], self.cV[0:16], self.ce[0], self.ce[1], self.cM[5], self.cM[6]) + tuple(self.cV[16:22])
         _k_band_jacobian(h, ds, rhoA, inertia, J, K, g, paper, Lam, r, self.wn[0], self.wn[1], self.cmask, self.idx,
@@ -736,7 +752,7 @@ class FastRodStep:
             self.wz[0] = res.z
             h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
             _k_finish(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, bool(self.ci[2]), self.cv[6], Lam,
-                      r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wd[0], self.rM[:5], self.rV,
+                      r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wn[2], self.wd[0], self.rM[:5], self.rV,
                       self.re[0], self.re[1], self.rM[5], q1, p1, v1, st[8:10])
         if st[8] > XI_MAX:
             j = int(st[9])
