@@ -48,7 +48,7 @@ from numba import njit
 from .errors import SolverError
 from .newton import newton_damped
 from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column,
-                  _k_element, unpack_level)
+                  _k_element, _k_mm, unpack_level)
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -498,15 +498,235 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         q1[12 * n1 + i] = origin[i] + shift
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, G, A, B, AB):
+    """Node j's terms added to the closed-form balances (G's last column: P then J) and to their derivative G[:, :6]
+    along a rigid motion (a, w) of level n+1 (see _k_rigid_system).  ca, cb: c = h ds mu of the elements before and
+    after the node (0 where there is none).  The inertial and weight terms are written as the element kernel writes
+    them (``_k_element``, level n), with the same constant factors: a product such as c/h^2 rounded differently would
+    be a fixed relative error of the masses, i.e. a bias eps |J| per step.  Each node's momentum and inertial terms are
+    combined before they are summed: they nearly cancel (their difference is the node's internal force impulse), and
+    the running sums then stay small."""
+    ih2 = 1.0 / (h * h)
+    m = rhoA * (ca + cb) / (2.0 * h)  # the lumped mass, for the derivative only
+    r0, r1, r2 = r_n[j, 0], r_n[j, 1], r_n[j, 2]
+    q0, q1, q2 = r0 + dr[j, 0], r1 + dr[j, 1], r2 + dr[j, 2]
+    # translational: f = p + sum_e c (rhoA g/4 - rhoA dr/(2 h^2)) (= p - m dr/h + h m g/2), P += f, J += r_n x f
+    f0 = pin[j, 0] + ca * (0.25 * rhoA * g[0] - 0.5 * rhoA * dr[j, 0] * ih2) + cb * (
+        0.25 * rhoA * g[0] - 0.5 * rhoA * dr[j, 0] * ih2)
+    f1 = pin[j, 1] + ca * (0.25 * rhoA * g[1] - 0.5 * rhoA * dr[j, 1] * ih2) + cb * (
+        0.25 * rhoA * g[1] - 0.5 * rhoA * dr[j, 1] * ih2)
+    f2 = pin[j, 2] + ca * (0.25 * rhoA * g[2] - 0.5 * rhoA * dr[j, 2] * ih2) + cb * (
+        0.25 * rhoA * g[2] - 0.5 * rhoA * dr[j, 2] * ih2)
+    G[0, 6] += f0
+    G[1, 6] += f1
+    G[2, 6] += f2
+    G[3, 6] += r1 * f2 - r2 * f1
+    G[4, 6] += r2 * f0 - r0 * f2
+    G[5, 6] += r0 * f1 - r1 * f0
+    # the balances change by -(1/h) G (a, w):  G = [[M I, -hat(S1)], [hat(S0), sum m ((r.q) I - q r^T) + ...]],
+    # S0 = sum m r_n, S1 = sum m q, q = r_n + dr
+    for i in range(3):
+        G[i, i] += m
+    G[0, 4] += m * q2
+    G[0, 5] += -m * q1
+    G[1, 3] += -m * q2
+    G[1, 5] += m * q0
+    G[2, 3] += m * q1
+    G[2, 4] += -m * q0
+    G[3, 1] += -m * r2
+    G[3, 2] += m * r1
+    G[4, 0] += m * r2
+    G[4, 2] += -m * r0
+    G[5, 0] += -m * r1
+    G[5, 1] += m * r0
+    rq = r0 * q0 + r1 * q1 + r2 * q2
+    for a in range(3):
+        G[3 + a, 3 + a] += m * rq
+        for b in range(3):
+            G[3 + a, 3 + b] -= m * (q0 if a == 0 else (q1 if a == 1 else q2)) * r_n[j, b]
+    # rotational: k(xi) = (dcay^-1_xi)^T I xi = I xi + xi x I xi / 2 + (xi.I xi) xi / 4;  J += Lambda_n (Pi - k/h)
+    # (the kernel's order: tmp = _k_dcinvT(xi, inertia xi, +1), D += (-0.5 c) ih2 tmp per element)
+    x0, x1, x2 = xi[j, 0], xi[j, 1], xi[j, 2]
+    y0, y1, y2 = inertia[0] * x0, inertia[1] * x1, inertia[2] * x2
+    wv = 0.25 * (x0 * y0 + x1 * y1 + x2 * y2)
+    t0 = y0 + 0.5 * (x1 * y2 - x2 * y1) + wv * x0
+    t1 = y1 + 0.5 * (x2 * y0 - x0 * y2) + wv * x1
+    t2 = y2 + 0.5 * (x0 * y1 - x1 * y0) + wv * x2
+    k0 = pin[j, 3] + -0.5 * ca * ih2 * t0 + -0.5 * cb * ih2 * t0
+    k1 = pin[j, 4] + -0.5 * ca * ih2 * t1 + -0.5 * cb * ih2 * t1
+    k2 = pin[j, 5] + -0.5 * ca * ih2 * t2 + -0.5 * cb * ih2 * t2
+    om = (ca + cb) / (2.0 * h)
+    I0, I1, I2 = inertia[0] * om, inertia[1] * om, inertia[2] * om
+    y0, y1, y2 = I0 * x0, I1 * x1, I2 * x2
+    xy = x0 * y0 + x1 * y1 + x2 * y2
+    for a in range(3):
+        G[3 + a, 6] += Lam_n[j, a, 0] * k0 + Lam_n[j, a, 1] * k1 + Lam_n[j, a, 2] * k2
+    # dk/dxi = I - hat(I xi)/2 + hat(xi) I/2 + xi (I xi)^T/2 + (xi.I xi)/4 Id;  dxi/dw = dcay^-1_xi Lambda_n^T w,
+    # dcay^-1_xi = Id - hat(xi)/2 + xi xi^T/4;  dJ/dw += Lambda_n (dk/dxi) dcay^-1_xi Lambda_n^T
+    A[0, 0] = I0 + 0.5 * x0 * y0 + 0.25 * xy
+    A[0, 1] = 0.5 * y2 - 0.5 * x2 * I1 + 0.5 * x0 * y1
+    A[0, 2] = -0.5 * y1 + 0.5 * x1 * I2 + 0.5 * x0 * y2
+    A[1, 0] = -0.5 * y2 + 0.5 * x2 * I0 + 0.5 * x1 * y0
+    A[1, 1] = I1 + 0.5 * x1 * y1 + 0.25 * xy
+    A[1, 2] = 0.5 * y0 - 0.5 * x0 * I2 + 0.5 * x1 * y2
+    A[2, 0] = 0.5 * y1 - 0.5 * x1 * I0 + 0.5 * x2 * y0
+    A[2, 1] = -0.5 * y0 + 0.5 * x0 * I1 + 0.5 * x2 * y1
+    A[2, 2] = I2 + 0.5 * x2 * y2 + 0.25 * xy
+    B[0, 0] = 1.0 + 0.25 * x0 * x0
+    B[0, 1] = 0.5 * x2 + 0.25 * x0 * x1
+    B[0, 2] = -0.5 * x1 + 0.25 * x0 * x2
+    B[1, 0] = -0.5 * x2 + 0.25 * x1 * x0
+    B[1, 1] = 1.0 + 0.25 * x1 * x1
+    B[1, 2] = 0.5 * x0 + 0.25 * x1 * x2
+    B[2, 0] = 0.5 * x1 + 0.25 * x2 * x0
+    B[2, 1] = -0.5 * x0 + 0.25 * x2 * x1
+    B[2, 2] = 1.0 + 0.25 * x2 * x2
+    for a in range(3):
+        for b in range(3):
+            AB[a, b] = A[a, 0] * B[0, b] + A[a, 1] * B[1, b] + A[a, 2] * B[2, b]
+    for a in range(3):  # A <- Lambda_n AB
+        for b in range(3):
+            A[a, b] = Lam_n[j, a, 0] * AB[0, b] + Lam_n[j, a, 1] * AB[1, b] + Lam_n[j, a, 2] * AB[2, b]
+    for a in range(3):  # + A Lambda_n^T
+        for b in range(3):
+            G[3 + a, 3 + b] += A[a, 0] * Lam_n[j, b, 0] + A[a, 1] * Lam_n[j, b, 1] + A[a, 2] * Lam_n[j, b, 2]
+
+
+@njit(cache=True, error_model="numpy")
+def _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, xi, dr, M, G):
+    """The step's linear and angular momentum balances in closed form, into G[:, 6] (docs/theory.md §9, "Momenta to
+    round-off"):
+
+        P(z) = sum_j [p_j - m_j dr_j/h + h m_j g/2] + h F/2,
+        J(z) = sum_j [r_j x (p_j - m_j dr_j/h + h m_j g/2) + Lambda_j (Pi_j - k(xi_j)/h)] + r_N x h F/2 + h T/2,
+
+    the sums of the residual's rows (spatial) and their moments without the internal forces, whose sums vanish
+    identically (L_d's strains at each level are invariant under a rigid motion of that level).  Newton leaves every
+    row at its round-off floor, the stiff forces' (h EA eps |dr| / ds); in these six directions the balances can be met
+    to the round-off of the momenta.  m_j, I_j: the lumped mass and inertia of node j (rho A, the section inertia
+    times ds (mu_{j-1} + mu_j)/2; mu = 1, or |Gamma_bar| for the paper's measure), k(xi) = (dcay^-1_xi)^T I xi.
+    G[:, :6]: their derivative along a rigid motion (a, w) of level n+1 (_k_rigid_polish), times -h.  ``xi``, ``dr``:
+    the chart of z (_k_chart); ``M`` (>= 4, 3, 3) real scratch; ``G`` (6, 7)."""
+    N = Lam_n.shape[0] - 1
+    A, B, AB, C = M[0], M[1], M[2], M[3]
+    for a in range(6):
+        for b in range(7):
+            G[a, b] = 0.0
+    for j in range(N + 1):
+        # c = h ds mu of the elements before and after node j (the element kernel's factor)
+        ca = 0.0
+        cb = 0.0
+        if j > 0:
+            ca = h * ds * (_k_measure(j - 1, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+        if j < N:
+            cb = h * ds * (_k_measure(j, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+        _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, G, A, B, AB)
+    # the loads' halves at the tip: h F / 2 at r_N, f^- of the tip torque (Lambda_N f^- = h T / 2)
+    f0, f1, f2 = 0.5 * h * force[0], 0.5 * h * force[1], 0.5 * h * force[2]
+    G[0, 6] += f0
+    G[1, 6] += f1
+    G[2, 6] += f2
+    G[3, 6] += r_n[N, 1] * f2 - r_n[N, 2] * f1 + 0.5 * h * torque[0]
+    G[4, 6] += r_n[N, 2] * f0 - r_n[N, 0] * f2 + 0.5 * h * torque[1]
+    G[5, 6] += r_n[N, 0] * f1 - r_n[N, 1] * f0 + 0.5 * h * torque[2]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
+    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
+    ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
+    _k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
+    _k_mm(Lam_n[e], C, A)
+    _k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
+    _k_mm(Lam_n[e + 1], C, B)
+    gg = 0.0
+    for i in range(3):
+        gi = 0.0
+        for k in range(3):
+            d0 = r_n[e + 1, k] - r_n[e, k]
+            d1 = d0 + dr[e + 1, k] - dr[e, k]
+            gi += (Lam_n[e, k, i] + Lam_n[e + 1, k, i]) * d0 + (A[k, i] + B[k, i]) * d1
+        gg += (gi / (4.0 * ds)) ** 2
+    return math.sqrt(gg)
+
+
+@njit(cache=True, error_model="numpy")
+def _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, z, idx, xi, dr, M, G):
+    """One Newton correction of the step's solution z in the six rigid directions of level n+1 that zeroes the
+    closed-form momentum balances of :func:`_k_rigid_system` (docs/theory.md §9, "Momenta to round-off").  The motion
+    (a, w): dr_j += a + w x (r_j + dr_j), Lambda_j^{n+1} <- (I + hat(w)) Lambda_j^{n+1}, i.e. b_j += Lambda_j^T (a +
+    w x (r_j + dr_j)), xi_j += dcay^-1_{xi_j} Lambda_j^T w; it leaves the strains of level n+1, hence the elastic
+    rows, unchanged, and it is of the size of the residual's floor.  Free open rods only (a support or a period breaks
+    the symmetry); off the mask (out of a planar rod's plane) the correction is zero.  Returns the largest change of a
+    b unknown (a diagnostic), or -1 if the 6x6 system is singular (z unchanged)."""
+    N = Lam_n.shape[0] - 1
+    _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, xi, dr, M, G)
+    # G x = h (P, J): Gaussian elimination with partial pivoting
+    for c in range(6):
+        G[c, 6] *= h
+    for c in range(6):
+        p = c
+        for r in range(c + 1, 6):
+            if abs(G[r, c]) > abs(G[p, c]):
+                p = r
+        if G[p, c] == 0.0:
+            return -1.0
+        if p != c:
+            for k in range(c, 7):
+                t = G[c, k]
+                G[c, k] = G[p, k]
+                G[p, k] = t
+        for r in range(c + 1, 6):
+            f = G[r, c] / G[c, c]
+            if f != 0.0:
+                for k in range(c, 7):
+                    G[r, k] -= f * G[c, k]
+    for c in range(5, -1, -1):
+        s = G[c, 6]
+        for k in range(c + 1, 6):
+            s -= G[c, k] * G[k, 6]
+        G[c, 6] = s / G[c, c]
+    a0, a1, a2, w0, w1, w2 = G[0, 6], G[1, 6], G[2, 6], G[3, 6], G[4, 6], G[5, 6]
+    # apply on the unknowns (off the mask, i.e. out of a planar rod's plane, the correction is zero)
+    size = 0.0
+    for j in range(N + 1):
+        q0, q1, q2 = r_n[j, 0] + dr[j, 0], r_n[j, 1] + dr[j, 1], r_n[j, 2] + dr[j, 2]
+        u0 = a0 + w1 * q2 - w2 * q1
+        u1 = a1 + w2 * q0 - w0 * q2
+        u2 = a2 + w0 * q1 - w1 * q0
+        x0, x1, x2 = xi[j, 0], xi[j, 1], xi[j, 2]
+        for i in range(3):
+            k = idx[j, i]
+            if k >= 0:
+                d = Lam_n[j, 0, i] * u0 + Lam_n[j, 1, i] * u1 + Lam_n[j, 2, i] * u2
+                z[k] += d
+                size = max(size, abs(d))
+        s0 = Lam_n[j, 0, 0] * w0 + Lam_n[j, 1, 0] * w1 + Lam_n[j, 2, 0] * w2
+        s1 = Lam_n[j, 0, 1] * w0 + Lam_n[j, 1, 1] * w1 + Lam_n[j, 2, 1] * w2
+        s2 = Lam_n[j, 0, 2] * w0 + Lam_n[j, 1, 2] * w1 + Lam_n[j, 2, 2] * w2
+        xs = 0.25 * (x0 * s0 + x1 * s1 + x2 * s2)
+        t0 = s0 - 0.5 * (x1 * s2 - x2 * s1) + xs * x0
+        t1 = s1 - 0.5 * (x2 * s0 - x0 * s2) + xs * x1
+        t2 = s2 - 0.5 * (x0 * s1 - x1 * s0) + xs * x2
+        for i in range(3):
+            k = idx[j, 3 + i]
+            if k >= 0:
+                d = t0 if i == 0 else (t1 if i == 1 else t2)
+                z[k] += d
+    return size
+
+
 @njit(cache=True, error_model="numpy")
 def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, p, v, vprev, q1, p1, v1, wz, wn, wd, rM, rV,
-                 re, cM, cV, ce, col, ab, ipiv, stats):
+                 re, cM, cV, ce, col, ab, ipiv, G, stats):
     """One whole step, one call (few array arguments: a numba call costs per argument).
 
     cf = [h, ds, rhoA, tol, rate_refresh, floor_est]; cv rows = inertia, J, K, g, tip force, tip torque, period;
-    ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate].
-    Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then _k_finish when it
-    converged.  cf[5] and ci[7], ci[9] are updated in place."""
+    ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate,
+    rigid polish].  Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then (a free
+    rod, ci[10]) _k_rigid_polish and _k_finish when it converged.  cf[5] and ci[7], ci[9] are updated in place;
+    G (6, 7): the rigid polish's system."""
     n1 = Lam_n.shape[0]
     h, ds, rhoA, tol, rate_refresh = cf[0], cf[1], cf[2], cf[3], cf[4]
     inertia, Jd, Kd, g, force, torque, period = cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6]
@@ -534,6 +754,9 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
         ci[9] -= 1
     if stats[0] == 0.0:
         return
+    if ci[10] != 0:
+        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
+        _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, z, idx, xi, dr, M, G)
     _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z,
               idx, xi, r_1, dr, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
 
@@ -605,8 +828,9 @@ class FastRodStep:
         # constants and preallocated buffers (reused by every step and every iteration)
         self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, float(rate_refresh), -1.0])
         self.cv = np.ascontiguousarray(np.stack([inertia, J, K, g, force, torque, rod.period]), dtype=float)
+        # the rigid polish of the solution (docs/theory.md §9, "Momenta to round-off"): a free rod with open ends
         self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
-                            0, 0], dtype=np.int64)
+                            0, 0, rod.free and not rod.periodic], dtype=np.int64)
         self.wz = np.zeros((3, nz))
         self.wn = np.zeros((3, n1, 3))  # xi, r_1, dr
         self.wd = np.zeros((2, n1, 6))
@@ -621,6 +845,7 @@ class FastRodStep:
         self.ab = np.zeros((nz, 2 * self.kl + self.ku + 1))
         self.ipiv = np.zeros(nz, np.int64)
         self.stats = np.zeros(10)
+        self.G = np.zeros((6, 7))
         self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
@@ -656,15 +881,42 @@ class FastRodStep:
     def residual(self, q0, p0, z):
         """The compiled step residual at z (Step.residual's order)."""
         Lam, r, _ = self._level(q0)
-        n1 = self.n1
-        pp = p0[self.model.rod_p]
-        pin = np.concatenate([pp[:3 * n1].reshape(n1, 3), pp[3 * n1:].reshape(n1, 3)], axis=1)
+        pin = self._pin(p0)
         out = np.zeros(self.nz)
         h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
         _k_residual(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, pin,
                     np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wn[2], self.wd[0],
                     self.rM[:5], self.rV, self.re[0], self.re[1], out)
         return out[self.bpos]
+
+    def _pin(self, p0):
+        pp = p0[self.model.rod_p]
+        n1 = self.n1
+        return np.ascontiguousarray(np.concatenate([pp[:3 * n1].reshape(n1, 3), pp[3 * n1:].reshape(n1, 3)], axis=1))
+
+    def momentum_balances(self, q0, p0, z):
+        """The step's linear and angular momentum balances at z in closed form (``_k_rigid_system``): (P, J), the
+        moments about the level's (floating) origin."""
+        Lam, r, _ = self._level(q0)
+        z = np.ascontiguousarray(z, dtype=float)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        xi, r_1, dr = np.zeros((3, self.n1, 3))
+        _k_chart(Lam, r, z, self.idx, periodic, xi, r_1, dr)
+        G = np.zeros((6, 7))
+        _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self._pin(p0), xi, dr, np.zeros((4, 3, 3)),
+                        G)
+        return G[:3, 6].copy(), G[3:, 6].copy()
+
+    def polish(self, q0, p0, z):
+        """z after the rigid polish of a step's solution (``_k_rigid_polish``; a free rod with open ends)."""
+        Lam, r, _ = self._level(q0)
+        z = np.array(z, dtype=float)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        xi, r_1, dr = np.zeros((3, self.n1, 3))
+        _k_chart(Lam, r, z, self.idx, periodic, xi, r_1, dr)
+        _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self._pin(p0), z, self.idx, xi, dr,
+                        np.zeros((4, 3, 3)), np.zeros((6, 7)))
+        return z
 
     def jacobian(self, q0, z):
         """The compiled band Jacobian at z as a dense (nz, nz) array in z's order (Step.jacobian's)."""
@@ -737,7 +989,7 @@ class FastRodStep:
         st = self.stats
         _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, Lam, r, origin, p,
                      v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
-                     self.col, self.ab, self.ipiv, st)
+                     self.col, self.ab, self.ipiv, self.G, st)
         iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
         fell_back = not st[0]
         if fell_back:
@@ -751,6 +1003,10 @@ class FastRodStep:
                                   residual=res.error, rate=res.rate)
             self.wz[0] = res.z
             h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+            if self.ci[10]:  # the rigid polish, as after the compiled iteration (wd[1]: this step's pi_n)
+                _k_chart(Lam, r, self.wz[0], self.idx, periodic, self.wn[0], self.wn[1], self.wn[2])
+                _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self.wd[1], self.wz[0], self.idx,
+                                self.wn[0], self.wn[2], self.rM, self.G)
             _k_finish(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, bool(self.ci[2]), self.cv[6], Lam,
                       r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wn[2], self.wd[0], self.rM[:5], self.rV,
                       self.re[0], self.re[1], self.rM[5], q1, p1, v1, st[8:10])
