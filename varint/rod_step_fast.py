@@ -19,7 +19,11 @@ gradient), but
   (contraction rate above ``RATE_REFRESH_ROD``);
 * the predictor extrapolates the last two steps' (b, xi) linearly (second order; the stepper's is the last step's,
   first order), and the iteration stops, as the stepper's, at the round-off floor (``POLISH_ROD`` polishing updates
-  past ``newton_tol`` while they still contract).
+  past ``newton_tol`` while they still contract);
+* the momenta are kept to their own round-off (docs/theory.md §9, "Momenta to round-off"): each element is evaluated
+  in coordinates centred on its node a at level n, with the velocities from the increments Lambda_n b rather than
+  from differences of rounded positions (``_k_levels_gradient``), and after Newton a free rod's solution is corrected
+  in the six rigid directions so that the step's momentum balances, in closed form, vanish (``_k_rigid_polish``).
 
 What it covers: a rod without ``[fluid]``/``[wall]`` and without ``rod.constraint`` (the shearable rod), 2D and 3D,
 clamped / pinned / free / periodic ends, either measure, gravity, the dead tip force and the dead tip torque.
@@ -603,8 +607,8 @@ def _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, p
 
     the sums of the residual's rows (spatial) and their moments without the internal forces, whose sums vanish
     identically (L_d's strains at each level are invariant under a rigid motion of that level).  Newton leaves every
-    row at its round-off floor, the stiff forces' (h EA eps |dr| / ds); in these six directions the balances can be met
-    to the round-off of the momenta.  m_j, I_j: the lumped mass and inertia of node j (rho A, the section inertia
+    row at its round-off floor, that of the stiff forces (h K eps |chord| / ds); in these six directions the balances
+    can be met to the round-off of the momenta.  m_j, I_j: the lumped mass and inertia of node j (rho A, the section inertia
     times ds (mu_{j-1} + mu_j)/2; mu = 1, or |Gamma_bar| for the paper's measure), k(xi) = (dcay^-1_xi)^T I xi.
     G[:, :6]: their derivative along a rigid motion (a, w) of level n+1 (_k_rigid_polish), times -h.  ``xi``, ``dr``:
     the chart of z (_k_chart); ``M`` (>= 4, 3, 3) real scratch; ``G`` (6, 7)."""
