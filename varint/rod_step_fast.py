@@ -19,7 +19,11 @@ gradient), but
   (contraction rate above ``RATE_REFRESH_ROD``);
 * the predictor extrapolates the last two steps' (b, xi) linearly (second order; the stepper's is the last step's,
   first order), and the iteration stops, as the stepper's, at the round-off floor (``POLISH_ROD`` polishing updates
-  past ``newton_tol`` while they still contract).
+  past ``newton_tol`` while they still contract);
+* the momenta are kept to their own round-off (docs/theory.md §9, "Momenta to round-off"): each element is evaluated
+  in coordinates centred on its node a at level n, with the velocities from the increments Lambda_n b rather than
+  from differences of rounded positions (``_k_levels_gradient``), and after Newton a free rod's solution is corrected
+  in the six rigid directions so that the step's momentum balances, in closed form, vanish (``_k_rigid_polish``).
 
 What it covers: a rod without ``[fluid]``/``[wall]`` and without ``rod.constraint`` (the shearable rod), 2D and 3D,
 clamped / pinned / free / periodic ends, either measure, gravity, the dead tip force and the dead tip torque.
@@ -48,7 +52,7 @@ from numba import njit
 from .errors import SolverError
 from .newton import newton_damped
 from .rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column,
-                  _k_element, unpack_level)
+                  _k_element, _k_mm, unpack_level)
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -151,8 +155,10 @@ def _k_band_solve(ab, kl, ku, ipiv, b):
 
 
 @njit(cache=True, error_model="numpy")
-def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
-    """(xi, r_1) of the step unknowns z: u = 0 off the mask, r_1 = r_n + Lambda_n b (Step.point)."""
+def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr):
+    """(xi, r_1, dr) of the step unknowns z: u = 0 off the mask, dr = Lambda_n b, r_1 = r_n + dr (Step.point).  The
+    increments dr are kept: the kinetic terms take the velocities from them, not from the difference r_1 - r_n of
+    rounded positions (docs/theory.md §9, "Momenta to round-off")."""
     n1 = Lam_n.shape[0]
     for j in range(n1):
         jj = 0 if (periodic and j == n1 - 1) else j  # a periodic rod's image node moves with node 0
@@ -160,23 +166,37 @@ def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1):
         b1 = z[idx[jj, 1]] if idx[jj, 1] >= 0 else 0.0
         b2 = z[idx[jj, 2]] if idx[jj, 2] >= 0 else 0.0
         for i in range(3):
-            r_1[j, i] = r_n[j, i] + Lam_n[j, i, 0] * b0 + Lam_n[j, i, 1] * b1 + Lam_n[j, i, 2] * b2
+            dr[j, i] = Lam_n[j, i, 0] * b0 + Lam_n[j, i, 1] * b1 + Lam_n[j, i, 2] * b2
+            r_1[j, i] = r_n[j, i] + dr[j, i]
             k = idx[jj, 3 + i]
             xi[j, i] = z[k] if k >= 0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")
-def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev, D, M, V, e1, e2):
+def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev, D, M, V, e1, e2):
     """D = D1 (lev 0) or D2 (lev 1) of L_d: the element gradients summed, and the tip force's node piece
-    (varint.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular."""
+    (varint.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular.
+
+    Each element is evaluated in coordinates centred on its node a at level n: r_a^n = 0, r_b^n = r_b^n - r_a^n,
+    r_a^{n+1} = dr_a, r_b^{n+1} = (r_b^n - r_a^n) + dr_b.  L_d's gradient depends on positions only through
+    differences (the gravity and tip-force pieces are constant), so this is the same function; but the element's
+    velocities r^{n+1} - r^n are then dr_a exactly and dr_b to eps ds (not eps |r|, the rounding of the absolute
+    positions, which set the floor of the step's momentum balance; docs/theory.md §9, "Momenta to round-off").
+    ``V`` (20, 3): the element kernel's scratch (rows 0-15) and the element's four positions (rows 16-19)."""
     N = Lam_n.shape[0] - 1
     for j in range(N + 1):
         for i in range(6):
             D[j, i] = 0.0
+    ra0, rb0, ra1, rb1 = V[16], V[17], V[18], V[19]
     for e in range(N):
+        for i in range(3):
+            ra0[i] = 0.0
+            rb0[i] = r_n[e + 1, i] - r_n[e, i]
+            ra1[i] = dr[e, i]
+            rb1[i] = rb0[i] + dr[e + 1, i]
         # _k_cay / _k_cay_inv divide by 4 + |w|^2 and 1 + tr: a pi rotation raises ZeroDivisionError in numba
-        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
-                   xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev, lev + 1, e1, e2, M, V)
+        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], ra0, rb0,
+                   xi[e], xi[e + 1], ra1, rb1, lev, lev + 1, e1, e2, M, V)
         src = e1 if lev == 0 else e2
         for i in range(6):
             D[e, i] += src[i]
@@ -188,12 +208,12 @@ def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n
 
 @njit(cache=True, error_model="numpy")
 def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
-                xi, r_1, D, M, V, e1, e2, out):
+                xi, r_1, dr, D, M, V, e1, e2, out):
     """The step residual (Step.residual) at z, written into out in band order (out[bpos[k]] = R_k).
     Returns False when it is not finite."""
     N = Lam_n.shape[0] - 1
-    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, 0, D, M, V, e1, e2)
+    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
+    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, D, M, V, e1, e2)
     for j in range(N + 1):
         for i in range(6):
             D[j, i] += pin[j, i]
@@ -308,7 +328,7 @@ def _k_stats(stats, converged, iterations, n_res, n_jac, err, factor_valid, code
 
 @njit(cache=True, error_model="numpy")
 def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, kl, ku,
-            scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab, ipiv,
+            scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab, ipiv,
             have_factor, stats):
     """Newton's chord iteration of varint.newton.newton on the step residual, all compiled.
 
@@ -328,7 +348,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     n_jac = 0
     jac_iter = -1  # -1: inherited factorisation
     if not have_factor:
-        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
         ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku,
                               cs, col, ab)
         n_jac += 1
@@ -345,7 +365,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     polished = 0
     while it < max_iter + polished:
         ok = _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
-                         xi, r_1, D, M, V, e1, e2, rb)
+                         xi, r_1, dr, D, M, V, e1, e2, rb)
         n_res += 1
         if not ok:
             _k_stats(stats, 0, it, n_res, n_jac, np.inf, 1, 1)
@@ -403,7 +423,7 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
                     _k_stats(stats, 0, it, n_res, n_jac, err, 1, 2)
                     return
                 if jac_iter < it:
-                    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+                    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
                     ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos,
                                           kl, ku, cs, col, ab)
                     n_jac += 1
@@ -421,14 +441,14 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
 
 @njit(cache=True, error_model="numpy")
 def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z, idx,
-              xi, r_1, D, M, V, e1, e2, C, q1, p1, v1, turn):
+              xi, r_1, dr, D, M, V, e1, e2, C, q1, p1, v1, turn):
     """The accepted step's new level: q_{n+1} (Step.retract: frames re-orthonormalised by one polar Newton step, a
     periodic image node, the floating origin on its binary grid), pi_{n+1} = fold(D2 L_d + f^+) (Step.momentum_plus)
     and the predictor's data v = (Lambda_n^T (r_1 - r_n), xi) (Simulation._step_velocity).  turn[0:2] = the largest
     |xi| and its node."""
     N = Lam_n.shape[0] - 1
     n1 = N + 1
-    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1)
+    _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
     turn[0] = 0.0
     turn[1] = 0.0
     for j in range(n1):
@@ -436,7 +456,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         if t > turn[0]:
             turn[0] = t
             turn[1] = j
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, 1, D, M, V, e1, e2)
+    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, D, M, V, e1, e2)
     # the new frames: Lambda_n cay(xi), then one polar Newton step L (3 I - L^T L) / 2 (varint.rod.reorthonormalize)
     L1 = q1[3 * n1:12 * n1].reshape(n1, 3, 3)
     T = M[4]  # (element scratch, free here)
@@ -482,21 +502,241 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         q1[12 * n1 + i] = origin[i] + shift
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, G, A, B, AB):
+    """Node j's terms added to the closed-form balances (G's last column: P then J) and to their derivative G[:, :6]
+    along a rigid motion (a, w) of level n+1 (see _k_rigid_system).  ca, cb: c = h ds mu of the elements before and
+    after the node (0 where there is none).  The inertial and weight terms are written as the element kernel writes
+    them (``_k_element``, level n), with the same constant factors: a product such as c/h^2 rounded differently would
+    be a fixed relative error of the masses, i.e. a bias eps |J| per step.  Each node's momentum and inertial terms are
+    combined before they are summed: they nearly cancel (their difference is the node's internal force impulse), and
+    the running sums then stay small."""
+    ih2 = 1.0 / (h * h)
+    m = rhoA * (ca + cb) / (2.0 * h)  # the lumped mass, for the derivative only
+    r0, r1, r2 = r_n[j, 0], r_n[j, 1], r_n[j, 2]
+    q0, q1, q2 = r0 + dr[j, 0], r1 + dr[j, 1], r2 + dr[j, 2]
+    # translational: f = p + sum_e c (rhoA g/4 - rhoA dr/(2 h^2)) (= p - m dr/h + h m g/2), P += f, J += r_n x f
+    f0 = pin[j, 0] + ca * (0.25 * rhoA * g[0] - 0.5 * rhoA * dr[j, 0] * ih2) + cb * (
+        0.25 * rhoA * g[0] - 0.5 * rhoA * dr[j, 0] * ih2)
+    f1 = pin[j, 1] + ca * (0.25 * rhoA * g[1] - 0.5 * rhoA * dr[j, 1] * ih2) + cb * (
+        0.25 * rhoA * g[1] - 0.5 * rhoA * dr[j, 1] * ih2)
+    f2 = pin[j, 2] + ca * (0.25 * rhoA * g[2] - 0.5 * rhoA * dr[j, 2] * ih2) + cb * (
+        0.25 * rhoA * g[2] - 0.5 * rhoA * dr[j, 2] * ih2)
+    G[0, 6] += f0
+    G[1, 6] += f1
+    G[2, 6] += f2
+    G[3, 6] += r1 * f2 - r2 * f1
+    G[4, 6] += r2 * f0 - r0 * f2
+    G[5, 6] += r0 * f1 - r1 * f0
+    # the balances change by -(1/h) G (a, w):  G = [[M I, -hat(S1)], [hat(S0), sum m ((r.q) I - q r^T) + ...]],
+    # S0 = sum m r_n, S1 = sum m q, q = r_n + dr
+    for i in range(3):
+        G[i, i] += m
+    G[0, 4] += m * q2
+    G[0, 5] += -m * q1
+    G[1, 3] += -m * q2
+    G[1, 5] += m * q0
+    G[2, 3] += m * q1
+    G[2, 4] += -m * q0
+    G[3, 1] += -m * r2
+    G[3, 2] += m * r1
+    G[4, 0] += m * r2
+    G[4, 2] += -m * r0
+    G[5, 0] += -m * r1
+    G[5, 1] += m * r0
+    rq = r0 * q0 + r1 * q1 + r2 * q2
+    for a in range(3):
+        G[3 + a, 3 + a] += m * rq
+        for b in range(3):
+            G[3 + a, 3 + b] -= m * (q0 if a == 0 else (q1 if a == 1 else q2)) * r_n[j, b]
+    # rotational: k(xi) = (dcay^-1_xi)^T I xi = I xi + xi x I xi / 2 + (xi.I xi) xi / 4;  J += Lambda_n (Pi - k/h)
+    # (the kernel's order: tmp = _k_dcinvT(xi, inertia xi, +1), D += (-0.5 c) ih2 tmp per element)
+    x0, x1, x2 = xi[j, 0], xi[j, 1], xi[j, 2]
+    y0, y1, y2 = inertia[0] * x0, inertia[1] * x1, inertia[2] * x2
+    wv = 0.25 * (x0 * y0 + x1 * y1 + x2 * y2)
+    t0 = y0 + 0.5 * (x1 * y2 - x2 * y1) + wv * x0
+    t1 = y1 + 0.5 * (x2 * y0 - x0 * y2) + wv * x1
+    t2 = y2 + 0.5 * (x0 * y1 - x1 * y0) + wv * x2
+    k0 = pin[j, 3] + -0.5 * ca * ih2 * t0 + -0.5 * cb * ih2 * t0
+    k1 = pin[j, 4] + -0.5 * ca * ih2 * t1 + -0.5 * cb * ih2 * t1
+    k2 = pin[j, 5] + -0.5 * ca * ih2 * t2 + -0.5 * cb * ih2 * t2
+    om = (ca + cb) / (2.0 * h)
+    I0, I1, I2 = inertia[0] * om, inertia[1] * om, inertia[2] * om
+    y0, y1, y2 = I0 * x0, I1 * x1, I2 * x2
+    xy = x0 * y0 + x1 * y1 + x2 * y2
+    for a in range(3):
+        G[3 + a, 6] += Lam_n[j, a, 0] * k0 + Lam_n[j, a, 1] * k1 + Lam_n[j, a, 2] * k2
+    # dk/dxi = I - hat(I xi)/2 + hat(xi) I/2 + xi (I xi)^T/2 + (xi.I xi)/4 Id;  dxi/dw = dcay^-1_xi Lambda_n^T w,
+    # dcay^-1_xi = Id - hat(xi)/2 + xi xi^T/4;  dJ/dw += Lambda_n (dk/dxi) dcay^-1_xi Lambda_n^T
+    A[0, 0] = I0 + 0.5 * x0 * y0 + 0.25 * xy
+    A[0, 1] = 0.5 * y2 - 0.5 * x2 * I1 + 0.5 * x0 * y1
+    A[0, 2] = -0.5 * y1 + 0.5 * x1 * I2 + 0.5 * x0 * y2
+    A[1, 0] = -0.5 * y2 + 0.5 * x2 * I0 + 0.5 * x1 * y0
+    A[1, 1] = I1 + 0.5 * x1 * y1 + 0.25 * xy
+    A[1, 2] = 0.5 * y0 - 0.5 * x0 * I2 + 0.5 * x1 * y2
+    A[2, 0] = 0.5 * y1 - 0.5 * x1 * I0 + 0.5 * x2 * y0
+    A[2, 1] = -0.5 * y0 + 0.5 * x0 * I1 + 0.5 * x2 * y1
+    A[2, 2] = I2 + 0.5 * x2 * y2 + 0.25 * xy
+    B[0, 0] = 1.0 + 0.25 * x0 * x0
+    B[0, 1] = 0.5 * x2 + 0.25 * x0 * x1
+    B[0, 2] = -0.5 * x1 + 0.25 * x0 * x2
+    B[1, 0] = -0.5 * x2 + 0.25 * x1 * x0
+    B[1, 1] = 1.0 + 0.25 * x1 * x1
+    B[1, 2] = 0.5 * x0 + 0.25 * x1 * x2
+    B[2, 0] = 0.5 * x1 + 0.25 * x2 * x0
+    B[2, 1] = -0.5 * x0 + 0.25 * x2 * x1
+    B[2, 2] = 1.0 + 0.25 * x2 * x2
+    for a in range(3):
+        for b in range(3):
+            AB[a, b] = A[a, 0] * B[0, b] + A[a, 1] * B[1, b] + A[a, 2] * B[2, b]
+    for a in range(3):  # A <- Lambda_n AB
+        for b in range(3):
+            A[a, b] = Lam_n[j, a, 0] * AB[0, b] + Lam_n[j, a, 1] * AB[1, b] + Lam_n[j, a, 2] * AB[2, b]
+    for a in range(3):  # + A Lambda_n^T
+        for b in range(3):
+            G[3 + a, 3 + b] += A[a, 0] * Lam_n[j, b, 0] + A[a, 1] * Lam_n[j, b, 1] + A[a, 2] * Lam_n[j, b, 2]
+
+
+@njit(cache=True, error_model="numpy")
+def _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, xi, dr, M, G):
+    """The step's linear and angular momentum balances in closed form, into G[:, 6] (docs/theory.md §9, "Momenta to
+    round-off"):
+
+        P(z) = sum_j [p_j - m_j dr_j/h + h m_j g/2] + h F/2,
+        J(z) = sum_j [r_j x (p_j - m_j dr_j/h + h m_j g/2) + Lambda_j (Pi_j - k(xi_j)/h)] + r_N x h F/2 + h T/2,
+
+    the sums of the residual's rows (spatial) and their moments without the internal forces, whose sums vanish
+    identically (L_d's strains at each level are invariant under a rigid motion of that level).  Newton leaves every
+    row at its round-off floor, that of the stiff forces (h K eps |chord| / ds); in these six directions the balances
+    can be met to the round-off of the momenta.  m_j, I_j: the lumped mass and inertia of node j (rho A, the section inertia
+    times ds (mu_{j-1} + mu_j)/2; mu = 1, or |Gamma_bar| for the paper's measure), k(xi) = (dcay^-1_xi)^T I xi.
+    G[:, :6]: their derivative along a rigid motion (a, w) of level n+1 (_k_rigid_polish), times -h.  ``xi``, ``dr``:
+    the chart of z (_k_chart); ``M`` (>= 4, 3, 3) real scratch; ``G`` (6, 7)."""
+    N = Lam_n.shape[0] - 1
+    A, B, AB, C = M[0], M[1], M[2], M[3]
+    for a in range(6):
+        for b in range(7):
+            G[a, b] = 0.0
+    for j in range(N + 1):
+        # c = h ds mu of the elements before and after node j (the element kernel's factor)
+        ca = 0.0
+        cb = 0.0
+        if j > 0:
+            ca = h * ds * (_k_measure(j - 1, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+        if j < N:
+            cb = h * ds * (_k_measure(j, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+        _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, G, A, B, AB)
+    # the loads' halves at the tip: h F / 2 at r_N, f^- of the tip torque (Lambda_N f^- = h T / 2)
+    f0, f1, f2 = 0.5 * h * force[0], 0.5 * h * force[1], 0.5 * h * force[2]
+    G[0, 6] += f0
+    G[1, 6] += f1
+    G[2, 6] += f2
+    G[3, 6] += r_n[N, 1] * f2 - r_n[N, 2] * f1 + 0.5 * h * torque[0]
+    G[4, 6] += r_n[N, 2] * f0 - r_n[N, 0] * f2 + 0.5 * h * torque[1]
+    G[5, 6] += r_n[N, 0] * f1 - r_n[N, 1] * f0 + 0.5 * h * torque[2]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
+    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
+    ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
+    _k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
+    _k_mm(Lam_n[e], C, A)
+    _k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
+    _k_mm(Lam_n[e + 1], C, B)
+    gg = 0.0
+    for i in range(3):
+        gi = 0.0
+        for k in range(3):
+            d0 = r_n[e + 1, k] - r_n[e, k]
+            d1 = d0 + dr[e + 1, k] - dr[e, k]
+            gi += (Lam_n[e, k, i] + Lam_n[e + 1, k, i]) * d0 + (A[k, i] + B[k, i]) * d1
+        gg += (gi / (4.0 * ds)) ** 2
+    return math.sqrt(gg)
+
+
+@njit(cache=True, error_model="numpy")
+def _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, z, idx, xi, dr, M, G):
+    """One Newton correction of the step's solution z in the six rigid directions of level n+1 that zeroes the
+    closed-form momentum balances of :func:`_k_rigid_system` (docs/theory.md §9, "Momenta to round-off").  The motion
+    (a, w): dr_j += a + w x (r_j + dr_j), Lambda_j^{n+1} <- (I + hat(w)) Lambda_j^{n+1}, i.e. b_j += Lambda_j^T (a +
+    w x (r_j + dr_j)), xi_j += dcay^-1_{xi_j} Lambda_j^T w; it leaves the strains of level n+1, hence the elastic
+    rows, unchanged, and it is of the size of the residual's floor.  Free open rods only (a support or a period breaks
+    the symmetry); off the mask (out of a planar rod's plane) the correction is zero.  Returns the largest change of a
+    b unknown (a diagnostic), or -1 if the 6x6 system is singular (z unchanged)."""
+    N = Lam_n.shape[0] - 1
+    _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, xi, dr, M, G)
+    # G x = h (P, J): Gaussian elimination with partial pivoting
+    for c in range(6):
+        G[c, 6] *= h
+    for c in range(6):
+        p = c
+        for r in range(c + 1, 6):
+            if abs(G[r, c]) > abs(G[p, c]):
+                p = r
+        if G[p, c] == 0.0:
+            return -1.0
+        if p != c:
+            for k in range(c, 7):
+                t = G[c, k]
+                G[c, k] = G[p, k]
+                G[p, k] = t
+        for r in range(c + 1, 6):
+            f = G[r, c] / G[c, c]
+            if f != 0.0:
+                for k in range(c, 7):
+                    G[r, k] -= f * G[c, k]
+    for c in range(5, -1, -1):
+        s = G[c, 6]
+        for k in range(c + 1, 6):
+            s -= G[c, k] * G[k, 6]
+        G[c, 6] = s / G[c, c]
+    a0, a1, a2, w0, w1, w2 = G[0, 6], G[1, 6], G[2, 6], G[3, 6], G[4, 6], G[5, 6]
+    # apply on the unknowns (off the mask, i.e. out of a planar rod's plane, the correction is zero)
+    size = 0.0
+    for j in range(N + 1):
+        q0, q1, q2 = r_n[j, 0] + dr[j, 0], r_n[j, 1] + dr[j, 1], r_n[j, 2] + dr[j, 2]
+        u0 = a0 + w1 * q2 - w2 * q1
+        u1 = a1 + w2 * q0 - w0 * q2
+        u2 = a2 + w0 * q1 - w1 * q0
+        x0, x1, x2 = xi[j, 0], xi[j, 1], xi[j, 2]
+        for i in range(3):
+            k = idx[j, i]
+            if k >= 0:
+                d = Lam_n[j, 0, i] * u0 + Lam_n[j, 1, i] * u1 + Lam_n[j, 2, i] * u2
+                z[k] += d
+                size = max(size, abs(d))
+        s0 = Lam_n[j, 0, 0] * w0 + Lam_n[j, 1, 0] * w1 + Lam_n[j, 2, 0] * w2
+        s1 = Lam_n[j, 0, 1] * w0 + Lam_n[j, 1, 1] * w1 + Lam_n[j, 2, 1] * w2
+        s2 = Lam_n[j, 0, 2] * w0 + Lam_n[j, 1, 2] * w1 + Lam_n[j, 2, 2] * w2
+        xs = 0.25 * (x0 * s0 + x1 * s1 + x2 * s2)
+        t0 = s0 - 0.5 * (x1 * s2 - x2 * s1) + xs * x0
+        t1 = s1 - 0.5 * (x2 * s0 - x0 * s2) + xs * x1
+        t2 = s2 - 0.5 * (x0 * s1 - x1 * s0) + xs * x2
+        for i in range(3):
+            k = idx[j, 3 + i]
+            if k >= 0:
+                d = t0 if i == 0 else (t1 if i == 1 else t2)
+                z[k] += d
+    return size
+
+
 @njit(cache=True, error_model="numpy")
 def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, p, v, vprev, q1, p1, v1, wz, wn, wd, rM, rV,
-                 re, cM, cV, ce, col, ab, ipiv, stats):
+                 re, cM, cV, ce, col, ab, ipiv, G, stats):
     """One whole step, one call (few array arguments: a numba call costs per argument).
 
     cf = [h, ds, rhoA, tol, rate_refresh, floor_est]; cv rows = inertia, J, K, g, tip force, tip torque, period;
-    ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate].
-    Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then _k_finish when it
-    converged.  cf[5] and ci[7], ci[9] are updated in place."""
+    ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate,
+    rigid polish].  Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then (a free
+    rod, ci[10]) _k_rigid_polish and _k_finish when it converged.  cf[5] and ci[7], ci[9] are updated in place;
+    G (6, 7): the rigid polish's system."""
     n1 = Lam_n.shape[0]
     h, ds, rhoA, tol, rate_refresh = cf[0], cf[1], cf[2], cf[3], cf[4]
     inertia, Jd, Kd, g, force, torque, period = cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6]
     paper, periodic, floating = ci[0] != 0, ci[1] != 0, ci[2] != 0
     z, dz, rb = wz[0], wz[1], wz[2]
-    xi, r_1 = wn[0], wn[1]
+    xi, r_1, dr = wn[0], wn[1], wn[2]
     D, pin = wd[0], wd[1]
     for k in range(z.shape[0]):
         z[k] = 2.0 * v[vsel[k]] - vprev[vsel[k]] if ci[8] != 0 else v[vsel[k]]
@@ -508,7 +748,7 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
     cs = (cM[0:5], cV[0:16], ce[0], ce[1], cM[5], cM[6], cV[16], cV[17], cV[18], cV[19], cV[20], cV[21])
     M, V, e1, e2 = rM[0:5], rV, re[0], re[1]
     _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, ci[3],
-            ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, D, M, V, e1, e2, cs, col, ab,
+            ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab,
             ipiv, ci[7] != 0, stats)
     ci[7] = 1 if stats[5] != 0.0 else 0
     if stats[7] > 0.0:  # a measured round-off floor: recalibrate every 64 steps
@@ -518,8 +758,11 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
         ci[9] -= 1
     if stats[0] == 0.0:
         return
+    if ci[10] != 0:
+        _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
+        _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, pin, z, idx, xi, dr, M, G)
     _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, floating, period, Lam_n, r_n, origin, z,
-              idx, xi, r_1, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
+              idx, xi, r_1, dr, D, M, V, e1, e2, rM[5], q1, p1, v1, stats[8:10])
 
 
 class FastRodStep:
@@ -589,13 +832,14 @@ class FastRodStep:
         # constants and preallocated buffers (reused by every step and every iteration)
         self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, float(rate_refresh), -1.0])
         self.cv = np.ascontiguousarray(np.stack([inertia, J, K, g, force, torque, rod.period]), dtype=float)
+        # the rigid polish of the solution (docs/theory.md §9, "Momenta to round-off"): a free rod with open ends
         self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
-                            0, 0], dtype=np.int64)
+                            0, 0, rod.free and not rod.periodic], dtype=np.int64)
         self.wz = np.zeros((3, nz))
-        self.wn = np.zeros((2, n1, 3))
+        self.wn = np.zeros((3, n1, 3))  # xi, r_1, dr
         self.wd = np.zeros((2, n1, 6))
         self.rM = np.zeros((6, 3, 3))
-        self.rV = np.zeros((16, 3))
+        self.rV = np.zeros((20, 3))  # the element kernel's scratch and an element's four positions
         self.re = np.zeros((2, 12))
         c = np.complex128
         self.cM = np.zeros((7, 3, 3), c)
@@ -605,6 +849,7 @@ class FastRodStep:
         self.ab = np.zeros((nz, 2 * self.kl + self.ku + 1))
         self.ipiv = np.zeros(nz, np.int64)
         self.stats = np.zeros(10)
+        self.G = np.zeros((6, 7))
         self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
@@ -640,22 +885,49 @@ class FastRodStep:
     def residual(self, q0, p0, z):
         """The compiled step residual at z (Step.residual's order)."""
         Lam, r, _ = self._level(q0)
-        n1 = self.n1
-        pp = p0[self.model.rod_p]
-        pin = np.concatenate([pp[:3 * n1].reshape(n1, 3), pp[3 * n1:].reshape(n1, 3)], axis=1)
+        pin = self._pin(p0)
         out = np.zeros(self.nz)
         h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
         _k_residual(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, pin,
-                    np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wd[0],
+                    np.ascontiguousarray(z, dtype=float), self.idx, self.bpos, self.wn[0], self.wn[1], self.wn[2], self.wd[0],
                     self.rM[:5], self.rV, self.re[0], self.re[1], out)
         return out[self.bpos]
+
+    def _pin(self, p0):
+        pp = p0[self.model.rod_p]
+        n1 = self.n1
+        return np.ascontiguousarray(np.concatenate([pp[:3 * n1].reshape(n1, 3), pp[3 * n1:].reshape(n1, 3)], axis=1))
+
+    def momentum_balances(self, q0, p0, z):
+        """The step's linear and angular momentum balances at z in closed form (``_k_rigid_system``): (P, J), the
+        moments about the level's (floating) origin."""
+        Lam, r, _ = self._level(q0)
+        z = np.ascontiguousarray(z, dtype=float)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        xi, r_1, dr = np.zeros((3, self.n1, 3))
+        _k_chart(Lam, r, z, self.idx, periodic, xi, r_1, dr)
+        G = np.zeros((6, 7))
+        _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self._pin(p0), xi, dr, np.zeros((4, 3, 3)),
+                        G)
+        return G[:3, 6].copy(), G[3:, 6].copy()
+
+    def polish(self, q0, p0, z):
+        """z after the rigid polish of a step's solution (``_k_rigid_polish``; a free rod with open ends)."""
+        Lam, r, _ = self._level(q0)
+        z = np.array(z, dtype=float)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        xi, r_1, dr = np.zeros((3, self.n1, 3))
+        _k_chart(Lam, r, z, self.idx, periodic, xi, r_1, dr)
+        _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self._pin(p0), z, self.idx, xi, dr,
+                        np.zeros((4, 3, 3)), np.zeros((6, 7)))
+        return z
 
     def jacobian(self, q0, z):
         """The compiled band Jacobian at z as a dense (nz, nz) array in z's order (Step.jacobian's)."""
         Lam, r, _ = self._level(q0)
         z = np.ascontiguousarray(z, dtype=float)
         h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
-        _k_chart(Lam, r, z, self.idx, periodic, self.wn[0], self.wn[1])
+        _k_chart(Lam, r, z, self.idx, periodic, self.wn[0], self.wn[1], self.wn[2])
         ab = np.zeros_like(self.ab)
         cs = (self.cM[0:5], self.cV[0:16], self.ce[0], self.ce[1], self.cM[5], self.cM[6]) + tuple(self.cV[16:22])
         _k_band_jacobian(h, ds, rhoA, inertia, J, K, g, paper, Lam, r, self.wn[0], self.wn[1], self.cmask, self.idx,
@@ -721,7 +993,7 @@ class FastRodStep:
         st = self.stats
         _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, Lam, r, origin, p,
                      v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
-                     self.col, self.ab, self.ipiv, st)
+                     self.col, self.ab, self.ipiv, self.G, st)
         iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
         fell_back = not st[0]
         if fell_back:
@@ -735,8 +1007,12 @@ class FastRodStep:
                                   residual=res.error, rate=res.rate)
             self.wz[0] = res.z
             h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+            if self.ci[10]:  # the rigid polish, as after the compiled iteration (wd[1]: this step's pi_n)
+                _k_chart(Lam, r, self.wz[0], self.idx, periodic, self.wn[0], self.wn[1], self.wn[2])
+                _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam, r, self.wd[1], self.wz[0], self.idx,
+                                self.wn[0], self.wn[2], self.rM, self.G)
             _k_finish(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, bool(self.ci[2]), self.cv[6], Lam,
-                      r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wd[0], self.rM[:5], self.rV,
+                      r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wn[2], self.wd[0], self.rM[:5], self.rV,
                       self.re[0], self.re[1], self.rM[5], q1, p1, v1, st[8:10])
         if st[8] > XI_MAX:
             j = int(st[9])
