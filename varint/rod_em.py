@@ -345,6 +345,7 @@ class RodEMStep:
         qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
         last = np.inf
         fresh = False
+        stale = 0  # chord iterations since the factorisation was made
         for it in range(1, self.max_iter + 1):
             R = self.residual_compiled(z) if self.compiled else self.residual(z)
             self.stats["residuals"] += 1
@@ -358,6 +359,8 @@ class RodEMStep:
                     raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
                 self.stats["jacobians"] += 1
                 fresh = True
+                stale = 0
+            stale += 1
             dz = self._rotate(self._lu.solve(self._rotate(-R, transpose=True)))
             size = float(np.max(np.abs(dz[qmask]) / sc))
             if not np.isfinite(size):
@@ -373,8 +376,8 @@ class RodEMStep:
             z = z + dz
             if size < 1e-3 * self.tol:
                 return z, it
-            if chord and it > 1 and size > self.rate_refresh * last and not fresh and last >= self.tol:
-                self._lu = None  # slow contraction: refresh the Jacobian
+            if chord and it > 1 and not fresh and last >= self.tol and (size > self.rate_refresh * last or stale >= 20):
+                self._lu = None  # slow contraction, or 20 chord iterations on one factorisation: refresh the Jacobian
             fresh = False
             last = size
         if last < 1e3 * self.tol:

@@ -394,6 +394,8 @@ class Simulation(OpenEndsStepping):
         self._factor = None
         if getattr(self, "_fast", None) is not None:
             self._fast.invalidate()
+        if getattr(self, "_em", None) is not None:
+            self._em._lu = None
 
     def _where(self, n):
         return f"step {n} (t = {n * self.h:.6g} s)"
