@@ -27,8 +27,10 @@ so the midpoint-evaluated gradients annihilate the rigid directions at q_bar: P 
 are conserved to round-off.
 
 Scope in this version: the rod alone, free, pinned or clamped ends, gravity and a dead tip force (potentials linear
-in r: their discrete gradient is exact); no tip torque, fluid, wall, constraint, paper measure or periodic ends (the
-scene check refuses them in one line).  The default remains the midpoint scheme.
+in r: their discrete gradient is exact), shearable or with rod.constraint (Gamma = chi held at the levels by element
+forces mu); runs resume from checkpoints (state_data).  No tip torque, fluid, wall, paper measure or periodic ends
+(the scene check refuses them in one line).  The default remains the midpoint scheme.  The momenta are kept to
+round-off by increments as unknowns and a rigid polish after Newton (docs/theory.md §12a, "Momenta to round-off").
 """
 
 from __future__ import annotations
@@ -137,7 +139,7 @@ def director_masses(rod):
 
 
 class RodEMStep:
-    """Energy-momentum stepping of a free rod alone (docs/theory.md §12a); its own state (r, D, v, V)."""
+    """Energy-momentum stepping of a rod alone (docs/theory.md §12a); its own state (r, D, v, V, lambda, mu)."""
 
     def __init__(self, model, h, tol=1e-13, max_iter=40):
         why = supports(model)
@@ -203,7 +205,7 @@ class RodEMStep:
         return z.reshape(z.shape[:-1] + (self.N + 1, self.nv))[..., :-1, NV:]
 
     def residual(self, z):
-        """R(z) (.., (N+1)*18) of the step from the current level; z = (r_1 - r_0, D_1 - D_0, lambda) per node: the
+        """R(z) (.., (N+1)*nv) of the step from the current level; z = (r_1 - r_0, D_1 - D_0, lambda) per node: the
         unknowns are the increments, so that the level velocities v_1 = 2 dr/h - v_0 carry no rounding of the
         positions (docs/theory.md §12a, "Momenta to round-off")."""
         h = self.h
@@ -279,7 +281,7 @@ class RodEMStep:
             self._kernel(zc, Rc)
             Rc = Rc.imag / eps
         else:
-            Rc = self.residual(zc).imag / eps  # (54, n)
+            Rc = self.residual(zc).imag / eps  # (3 nv, n)
         self.stats["residuals"] += P.shape[0]
         if body:
             Rc = np.array([self._rotate(row, transpose=True) for row in Rc])
@@ -442,7 +444,7 @@ class RodEMStep:
         return P, J, rb, Db
 
     def _polish_rigid(self, z):
-        """One Newton correction of the solution in the six rigid directions (dr += a + w x rbar, dd_i += w x dbar_i)
+        """One (quasi-)Newton correction of the solution in the six rigid directions (dr += a + w x rbar, dd_i += w x dbar_i)
         that zeroes the momentum balances of :meth:`_momentum_residuals`.  Newton's last iterate leaves the full
         residual at its floor eps h|F| (the stiff forces' rounding); in the rigid directions, where the forces' sums
         are known to vanish, the balances can be met to eps m|v|: without this the momenta random-walk by ~1e-12 over
@@ -473,7 +475,9 @@ class RodEMStep:
 
     def step_state(self, st, model):
         """One step, returned as the stepper's :class:`varint.stepper.State` (q: frames and positions; p: the node
-        momenta m v and the body angular momenta Pi = D^T sum_i d_i x E_i d_i')."""
+        momenta m v and the body angular momenta Pi = D^T sum_i d_i x E_i d_i').  A state whose level n differs from
+        the step's own is taken as a resumed run and restored from its data (state_data); a different state at the
+        same level is not detected (the stepper only ever passes back what this returned)."""
         from .rod import pack_level
         from .stepper import State
 
