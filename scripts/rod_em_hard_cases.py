@@ -81,6 +81,8 @@ def bench(args):
     print("|---|---|---|---|---|---|---|")
     for name in names:
         kw = dict(CASES[name], dim=3)
+        if args.constraint:
+            kw["constraint"] = "inextensible_unshearable"
         for h in hs:
             te, tm = [], []
             for _ in range(3):

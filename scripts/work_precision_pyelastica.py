@@ -165,7 +165,7 @@ def _ratio(a, b, rows_pe, key):
         return "—"
     if b is not None:
         return f"{b[key] / a[key]:.0f}"
-    done = [r for r in rows_pe if r["wall"] is not None]
+    done = [r for r in rows_pe if r["wall"] is not None and r.get(key) is not None]
     if not done:
         return "—"
     top = max(done, key=lambda r: r["n_el"])
