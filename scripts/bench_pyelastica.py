@@ -132,7 +132,8 @@ def pyelastica_run(E, dt, periods, w_ref, check_only_steps=None, n_el=N_EL):
     wall = time.perf_counter() - t0
     if check_only_steps is not None:
         return bool(np.all(np.isfinite(rod.position_collection)) and np.max(np.abs(rod.position_collection[1])) < 0.1)
-    # energy sampling costs time: charge only the stepping (measure it again without callbacks)
+    # the wall time includes the energy sampling (about 0.1 s of 40 s at 100 elements: 4000 calls of ~21 µs);
+    # scripts/work_precision_pyelastica.py times the stepping alone
     return np.array(ts), np.array(tips), np.array(Es), wall
 
 
