@@ -1,6 +1,8 @@
 """The midpoint rod's momenta over long runs of the base hard case (docs/theory.md §9, "Momenta to round-off").
 
-Run:  python scripts/rod_momenta_roundoff.py [--steps 5000] [--h 2e-3] [--dim 2 3] [--no-polish]
+Run:  python scripts/rod_momenta_roundoff.py [--steps 5000] [--h 2e-3] [--dim 2 3] [--no-polish] [--case 2]
+      (--case K: case K of scripts/rod_constraint_hard_cases.py CASES instead of the base case, e.g. 2 = spin 8 rad/s,
+      3 = slender r = 2 mm; --dim then only chooses the model's dimension)
 
 Case: docs/theory.md §12's base hard case (PyElastica's section, free arc kappa = 2 /m spinning at 2 rad/s about z,
 N = 50; 3D: arc about z and y), stepped by Simulation (the compiled FastRodStep).  Prints the largest changes over
@@ -23,8 +25,12 @@ from varint import Simulation  # noqa: E402
 from varint.errors import SolverError  # noqa: E402
 
 
-def run(dim, steps, h, polish=True):
+def run(dim, steps, h, polish=True, case=None):
     kw = dict(dim=3, curvature=(0, 1.0, 2.0)) if dim == 3 else {}
+    if case is not None:
+        from rod_constraint_hard_cases import CASES
+
+        kw = dict(list(CASES.values())[case], dim=dim)
     model = make(h=h, **kw)
     sim = Simulation(model, h=h)
     if sim._fast is not None and not polish:
@@ -57,11 +63,12 @@ def main():
     ap.add_argument("--h", type=float, default=2e-3)
     ap.add_argument("--dim", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--no-polish", action="store_true")
+    ap.add_argument("--case", type=int, default=None, help="a case of rod_constraint_hard_cases.CASES by index")
     args = ap.parse_args()
     print("| model | h [ms] | steps | rigid polish | max dP L/|J0| | max dJ/|J0| | max |E/E0-1| | iterations/step | wall s | outcome |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for dim in args.dim:
-        r = run(dim, args.steps, args.h, not args.no_polish)
+        r = run(dim, args.steps, args.h, not args.no_polish, args.case)
         print(f"| {'planar' if dim == 2 else '3D'} | {args.h * 1e3:g} | {args.steps} | {'no' if args.no_polish else 'yes'} "
               f"| {r['dP']:.2e} | {r['dJ']:.2e} | {r['dE']:.3e} | {r['its']:.2f} | {r['wall']:.0f} | {r['outcome']} |",
               flush=True)
