@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT.parent / "tests"))
 
+import bench_pyelastica  # noqa: E402
 from bench_pyelastica import L, N_EL, RAD, RHO, mode_shape, reference  # noqa: E402
 from helpers import to_toml  # noqa: E402
 from test_rod import solid_section  # noqa: E402
@@ -96,42 +97,13 @@ def run_fast(model, n, fast=None, st=None):
 
 def pyelastica_stepper():
     """PositionVerlet on the same rod at 100 elements, at half its stability limit (scripts/bench_pyelastica.py):
-    a function doing n steps, or None without PyElastica."""
+    (a function doing n steps, dt), or None without PyElastica."""
     try:
-        import elastica as ea
+        import elastica  # noqa: F401
     except ImportError:
         return None
-
-    class Sim(ea.BaseSystemCollection, ea.Constraints):
-        pass
-
-    sim = Sim()
-    rod = ea.CosseratRod.straight_rod(N_EL, np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), L, RAD,
-                                      RHO, youngs_modulus=E, shear_modulus=E / 1.5)
-    s = np.linspace(0.0, L, N_EL + 1)
-    rod.position_collection[1, :] = mode_shape(s)[0]
-    chord = np.diff(rod.position_collection, axis=1)
-    d3 = chord / np.linalg.norm(chord, axis=0)
-    d1 = np.zeros_like(d3)
-    d1[2] = 1.0
-    rod.director_collection[0] = d1
-    rod.director_collection[1] = np.cross(d3.T, d1.T).T
-    rod.director_collection[2] = d3
-    sim.append(rod)
-    sim.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
-    sim.finalize()
-    stepper = ea.PositionVerlet()
     dt = 1.13e-4  # half the largest stable step at E = 1e6 (docs/performance.md)
-    clock = [0.0]
-
-    def run(n):
-        t = clock[0]
-        for _ in range(n):
-            t = stepper.step(sim, t, dt)
-        clock[0] = t
-
-    run(200)  # compiled kernels
-    return run, dt
+    return bench_pyelastica.pyelastica_stepper(E, dt, N_EL), dt
 
 
 def head_to_head(pe_run, k_list, T1, rounds):

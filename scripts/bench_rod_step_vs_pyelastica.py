@@ -22,31 +22,13 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pyelastica import largest_stable_dt, pyelastica_cantilever, reference  # noqa: E402
+from bench_pyelastica import largest_stable_dt, pyelastica_stepper, reference  # noqa: E402
 from bench_rod_step_fast import cantilever  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 from varint.rod_step_fast import FastRodStep  # noqa: E402
 
 E = 1e6
-
-
-def pyelastica_block(n_el, dt):
-    """A function doing n PyElastica steps on the cantilever at n_el elements (kernels compiled first)."""
-    import elastica as ea
-
-    sim, _ = pyelastica_cantilever(E, n_el)
-    stepper = ea.PositionVerlet()
-    clock = [0.0]
-
-    def run(n):
-        t = clock[0]
-        for _ in range(n):
-            t = stepper.step(sim, t, dt)
-        clock[0] = t
-
-    run(200)
-    return run
 
 
 def timed(fn, n):
@@ -77,7 +59,7 @@ def main():
     print("|---|---|---|---|---|---|---|---|")
     for n_el in sizes:
         dt = 0.5 * largest_stable_dt(E, w1, n_el=n_el, steps=300 if args.quick else 3000)
-        pe = pyelastica_block(n_el, dt)
+        pe = pyelastica_stepper(E, dt, n_el)
         old = Simulation(cantilever(n_el, h, 2))
         old._fast = None  # the general path
         old.step()
