@@ -19,6 +19,12 @@ from varint.rod_em import RodEMStep, discrete_gradient, potential, strains, supp
 
 
 def _scene(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-3, scheme="midpoint", gravity=None, **extra):
+    return build_model(parse_scene(to_toml(_scene_dict(n, sec, curvature, spin, h, scheme, gravity, **extra))))
+
+
+def _scene_dict(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-3, scheme="midpoint", gravity=None,
+                **extra):
+    """The scene of _scene as a dict (to write a scene file)."""
     sec = sec or dict(mass_per_length=1.0, rotary_inertia=0.01, bending_stiffness=1.0, torsional_stiffness=0.8,
                       axial_stiffness=100.0, shear_stiffness=60.0)
     rod = dict(sec, dimension=3, ends={"s0": "free", "sL": "free"})
@@ -28,7 +34,14 @@ def _scene(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-
          "time": {"step": h, "end": 1.0, "scheme": scheme}}
     if gravity is not None:
         d["environment"] = {"gravity": list(gravity)}
-    return build_model(parse_scene(to_toml(d)))
+    return d
+
+
+def _stepped(constraint, n=5, h=0.01):
+    """A RodEMStep on _scene after one step (its factorisation and predictor data made)."""
+    s = RodEMStep(_scene(n=n, h=h, constraint=constraint), h)
+    s.step()
+    return s
 
 
 # PyElastica's benchmark section (docs/theory.md §12): solid, r = 1 cm, E = 1 MPa, rho = 1000, G = E/1.5, k = 4/3
@@ -196,12 +209,8 @@ def test_the_inextensible_rod_where_the_constrained_midpoint_fails():
 def test_the_constrained_step_with_supports_and_gravity(ends):
     """rod.constraint with supports and gravity (a scene file through parse_scene: the pair is accepted): the energy
     with gravity's potential conserved, Gamma = chi held, the frames orthonormal."""
-    text = to_toml({"title": "em", "tube": {"length": 1.0, "nodes": 11, "radius": 0.01},
-                    "rod": dict(mass_per_length=1.0, rotary_inertia=0.01, bending_stiffness=1.0, torsional_stiffness=0.8,
-                                axial_stiffness=100.0, shear_stiffness=60.0, dimension=3, constraint="inextensible_unshearable",
-                                ends={"s0": ends[0], "sL": ends[1]}),
-                    "rod.initial": {"curvature": [0.0, 1.0, 2.0]}, "environment": {"gravity": [0.0, -9.81, 0.0]},
-                    "time": {"step": 5e-3, "end": 1.0, "scheme": "energy-momentum"}})
+    text = to_toml(_scene_dict(n=10, spin=(0.0, 0.0, 0.0), scheme="energy-momentum", gravity=(0.0, -9.81, 0.0),
+                               constraint="inextensible_unshearable", ends={"s0": ends[0], "sL": ends[1]}))
     sim = Simulation(build_model(parse_scene(text)))
     E0 = sim.monitors()["energy"]
     for _ in range(50):
@@ -273,8 +282,7 @@ def test_compiled_residual_equals_the_reference(constraint):
 @pytest.mark.parametrize("constraint", ["none", "inextensible_unshearable"])
 def test_jacobian_is_the_residual_derivative_in_space_and_body_frames(constraint):
     """The complex-step Jacobian against central differences of the residual; its body-frame form is T^T J T."""
-    s = RodEMStep(_scene(n=5, h=0.01, constraint=constraint), 0.01)
-    s.step()
+    s = _stepped(constraint)
     rng = np.random.default_rng(8)
     z = s._predict() + 1e-3 * rng.normal(size=(s.N + 1) * s.nv)
     J = s.jacobian(z).toarray()
@@ -309,8 +317,7 @@ def test_a_stale_factorisation_gives_the_same_step():
 @pytest.mark.parametrize("constraint", ["none", "inextensible_unshearable"])
 def test_body_frame_rotation_kernel_is_the_block_diagonal_T(constraint):
     """_k_rotate (Newton's body-frame change of unknowns) against the sparse T of RodEMStep._body_frames."""
-    s = RodEMStep(_scene(n=5, h=0.01, constraint=constraint), 0.01)
-    s.step()
+    s = _stepped(constraint)
     x = np.random.default_rng(7).normal(size=(s.N + 1) * s.nv)
     T = s._body_frames()
     assert np.allclose(s._rotate(x), T @ x, rtol=0, atol=1e-15)
@@ -324,11 +331,9 @@ def test_a_resumed_run_continues_the_uninterrupted_one(tmp_path):
     from varint.io import read_run
     from varint.runner import run_scene
 
-    d = {"title": "em", "tube": {"length": 1.0, "nodes": 9, "radius": 0.01},
-         "rod": dict(mass_per_length=1.0, rotary_inertia=0.01, bending_stiffness=1.0, torsional_stiffness=0.8,
-                     axial_stiffness=100.0, shear_stiffness=60.0, dimension=3, ends={"s0": "free", "sL": "free"}),
-         "rod.initial": {"curvature": [0.0, 1.0, 2.0], "angular_velocity": [0.0, 0.0, 2.0]},
-         "time": {"step": 5e-3, "end": 0.5, "scheme": "energy-momentum"}, "output": {"every": 10}}
+    d = _scene_dict(h=5e-3, scheme="energy-momentum")
+    d["time"]["end"] = 0.5
+    d["output"] = {"every": 10}
     scene = parse_scene(to_toml(d))
     full, part = tmp_path / "full.h5", tmp_path / "part.h5"
     run_scene(scene, str(full), progress=False)

@@ -181,6 +181,9 @@ class RodEMStep:
         self.fixed[self.N, NV:] = True
         self.free = not np.any(self.fixed[:, :NV])
         self.fixed = self.fixed.ravel()
+        # Newton's update size: positions relative to L, director components as they are, on the q unknowns only
+        self._qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
+        self._update_scale = np.tile(np.concatenate([np.full(3, rod.L), np.ones(9)]), self.N + 1)
         self.n = 0
         self.last = dict(iterations=0, jacobians=0, fallback=0)
         self._lu = None
@@ -343,8 +346,7 @@ class RodEMStep:
         than 1/2; a fresh one that does not contract ends the attempt), or full Newton (``chord=False``: a fresh
         Jacobian every iteration; the update may grow before it converges).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
         positions to L, directors) it stops when the next update no longer shrinks."""
-        sc = np.tile(np.concatenate([np.full(3, self.rod.L), np.ones(9)]), self.N + 1)
-        qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
+        sc, qmask = self._update_scale, self._qmask
         last = np.inf
         fresh = False
         stale = 0  # chord iterations since the factorisation was made
