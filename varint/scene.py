@@ -590,9 +590,13 @@ class _Validator:
             self.bad("initial.traveling_shock", "needs a straight fixed tube: not available with a [rod]")
         if sc.time.scheme == "trapezoidal":
             self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme or 'energy-momentum'; not 'trapezoidal'")
-        if sc.time.scheme == "energy-momentum":  # varint/rod_em.py, docs/theory.md §12a: what this version covers
-            if sc.fluid is not None or sc.wall is not None:
-                self.bad("time.scheme", "'energy-momentum' covers the rod alone (no [fluid] or [wall]) in this version")
+        if sc.time.scheme == "energy-momentum":  # varint/rod_em.py, varint/tube_em.py, docs/theory.md §12a-§12b
+            if sc.wall is not None and sc.wall.model == "quasistatic":
+                self.bad("time.scheme", "'energy-momentum' needs wall.model = 'dynamic' (a quasistatic wall is not covered in this version)")
+            elif sc.fluid is not None and sc.fluid.ends.s0 != "closed":
+                self.bad("time.scheme", "'energy-momentum' covers closed fluid ends only in this version (fluid.ends)")
+            elif sc.shock_capturing is not None:
+                self.bad("time.scheme", "'energy-momentum' does not cover [shock_capturing] in this version")
             elif rod.ends.s0 == "periodic":
                 self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
             elif any((rod.load or {}).get("torque") or ()):

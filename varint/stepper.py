@@ -272,13 +272,18 @@ class Simulation(OpenEndsStepping):
         self.model = model
         self._built_version = None  # open ends: the lattice version the step was built for
         self.h = float(h if h is not None else tcfg.step)
-        #: the energy-momentum step of the rod alone (varint/rod_em.py, docs/theory.md §12a); the Step below then only
-        #: lays out the state and the monitors
+        #: the energy-momentum step of the rod alone (varint/rod_em.py, docs/theory.md §12a) or of the coupled tube
+        #: (varint/tube_em.py, §12b); the Step below then only lays out the state and the monitors
         self._em = None
         if (scheme or tcfg.scheme) == "energy-momentum":
-            from .rod_em import RodEMStep
+            if model.coupled:
+                from .tube_em import TubeEMStep
 
-            self._em = RodEMStep(model, self.h, tol=min(tcfg.newton_tol, 1e-13) if tol is None else tol)
+                self._em = TubeEMStep(model, self.h, tol=min(tcfg.newton_tol, 1e-12) if tol is None else tol)
+            else:
+                from .rod_em import RodEMStep
+
+                self._em = RodEMStep(model, self.h, tol=min(tcfg.newton_tol, 1e-13) if tol is None else tol)
             scheme = "midpoint"
         self.scheme = make_scheme(model, self.h, scheme)
         self.tol = tol if tol is not None else tcfg.newton_tol
@@ -649,7 +654,7 @@ class Simulation(OpenEndsStepping):
 
             out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
         out["newton_iterations"] = self.stats.iterations
-        if self._em is not None:  # the energy-momentum step's own conserved energy and momenta (varint/rod_em.py)
+        if self._em is not None:  # the energy-momentum step's own conserved energy and momenta (rod_em.py, tube_em.py)
             out.update(self._em.monitors())
         return out
 
@@ -708,6 +713,10 @@ class Simulation(OpenEndsStepping):
         from .coupled_geometry import stretched_volumes
         from .coupled_terms import element_strains, stretch_map
 
+        if self._em is not None:  # the energy-momentum step's own energy, momenta, volumes (varint/tube_em.py)
+            out = self._em.monitors()
+            out["newton_iterations"] = self.stats.iterations
+            return out
         m, st, h = self.model, self.state, self.h
         t, rod = m.tube, m.rod
         N = rod.N

@@ -1,0 +1,844 @@
+"""The energy-momentum step for the coupled tube: rod + wall + fluid (``time.scheme = "energy-momentum"`` with
+``[fluid]``; docs/theory.md §12b).
+
+It extends the rod's energy-momentum step (:mod:`varint.rod_em`, theory §12a: directors as configuration, a
+discrete gradient of the rod's potential, orthonormality held by multipliers) to the coupled tube of theory §10 along
+the route written at the end of §12a:
+
+* each interior fluid label k carries its *spatial* position X_k as an unknown with the constant kinetic metric
+  1/2 mbar_k |X_k'|^2, and the holonomic constraint c_k = D_e^T (X_k - sum_i N_i(s_k) r_i) = 0 (Catmull-Rom weights of
+  §10.2, D_e the directors of the node nearest the label, fixed for the step) held at the levels by multipliers nu_k.
+  Its product-rule discrete derivative (every factor a rigid invariant, D_e^T X_k, D_e^T r_i, N_i(s_k)) is exact and
+  annihilates the rigid motions at the step's arithmetic midpoint;
+* the end labels sit on the end nodes (X_0 = r_0, X_M = r_N exactly): their masses join the end nodes';
+* the fluid's energy sum_k psi_k(V_k) (or the liquid's constraint V_k = V0_k) and p_ext sum_k V_k are taken at the
+  *levels*, with the parcel volumes of §10.3 (R and the nodal stretch gamma linear on each element) written as
+  sums of P * S: P = R_i R_j gamma_l a product of nodal values, whose average-vector-field derivative is exact in
+  closed form, and S a difference of the moment polynomials M_q at the clipped label coordinates, whose divided
+  difference is exact and computed without cancellation; psi by a divided difference (Gauss-Legendre of -p for
+  small volume changes); gamma through Delta|Gamma_e| = (Gamma^0 + Gamma^1) . Delta Gamma_e / (|Gamma^0| + |Gamma^1|)
+  with Gamma bilinear (its midpoint derivative exact and rigid-free);
+* the wall's kinetic energy 1/2 a w_j R_j'^2 (constant metric) and its energy (WallLinear quadratic: midpoint
+  gradient exact; WallTubeLaw through A = pi R^2 with exact divided differences).
+
+So U(q_1) - U(q_0) = grad_d U(q_0, q_1) . (q_1 - q_0) for any two configurations, the constraint forces do no work
+between two levels that hold the constraints, and every force annihilates the rigid motions at q_bar: the total
+energy is conserved to the solver's residual and P, J to its floor (tested in tests/test_tube_em.py).
+
+Scope in this version: closed fluid ends; free, pinned or clamped rod ends; rigid or dynamic wall (linear law or
+tube law); ideal gas, barotropic liquid or incompressible liquid; gravity, a dead tip force, p_ext; rod.constraint.
+Not covered (the scene check refuses them in one line naming time.scheme): open or periodic ends, a quasistatic
+wall, shock capturing and other non-conservative forces, a tip torque, the paper's measure.  The Jacobian is a dense
+complex step, so the step suits tubes of tens of elements (the rod alone has the compiled, sparse
+:class:`varint.rod_em.RodEMStep`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from .errors import SolverError
+from .rod_em import CHI, _PAIRS, _T, _hat, director_masses, discrete_gradient, potential, strains
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+_GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
+
+# M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, as coefficients of t^1..t^4 (theory §10.3)
+_MQ = np.array([[1.0, -1.5, 1.0, -0.25],
+                [0.0, 0.5, -2.0 / 3.0, 0.25],
+                [0.0, 0.0, 1.0 / 3.0, -0.25],
+                [0.0, 0.0, 0.0, 0.25]])
+# Catmull-Rom weights of nodes e-1, e, e+1, e+2 as coefficients of t^0..t^3 (theory §10.2)
+_CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
+                      [2.0, 0.0, -5.0, 3.0],
+                      [0.0, 1.0, 4.0, -3.0],
+                      [0.0, 0.0, -1.0, 1.0]])
+
+
+def supports(model):
+    """None when this step covers the coupled ``model``, else a one-line reason naming the key."""
+    t, rod = model.tube, model.rod
+    if rod is None or t is None or not t.has_fluid:
+        return "time.scheme: 'energy-momentum' covers the rod alone or the rod with [fluid] (and [wall])"
+    if t.open or t.periodic or rod.periodic:
+        return "time.scheme: 'energy-momentum' does not cover open or periodic ends in this version (fluid.ends, rod.ends)"
+    if t.has_wall and not t.wall_dynamic:
+        return "time.scheme: 'energy-momentum' needs wall.model = 'dynamic' (or no [wall]); a quasistatic wall is not covered"
+    if t.forces:
+        return "time.scheme: 'energy-momentum' does not cover non-conservative forces (shock capturing, damping) in this version"
+    if np.any(rod.torque):
+        return "time.scheme: 'energy-momentum' does not cover a tip torque (rod.load.torque) in this version"
+    if rod.paper_measure:
+        return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
+    return None
+
+
+# -- exact, cancellation-free divided differences ------------------------------------------------------------------
+
+
+def _power_dd(a, b, n):
+    """(b^n - a^n)/(b - a) = sum_i a^i b^(n-1-i), exact for a = b too."""
+    out = np.zeros(np.broadcast_shapes(np.shape(a), np.shape(b)), dtype=np.result_type(a, b, float))
+    for i in range(n):
+        out = out + a ** i * b ** (n - 1 - i)
+    return out
+
+
+def _poly(c, t, first_power=0):
+    """sum_p c[..., p] t^(p + first_power) (c's last axis the powers)."""
+    out = 0.0
+    for p in range(c.shape[-1]):
+        out = out + c[..., p] * t ** (p + first_power)
+    return out
+
+
+def _poly_dd(c, a, b, first_power=0):
+    """The divided difference of _poly(c, ., first_power) between a and b, without cancellation."""
+    out = 0.0
+    for p in range(c.shape[-1]):
+        n = p + first_power
+        if n:
+            out = out + c[..., p] * _power_dd(a, b, n)
+    return out
+
+
+def _clip01(t):
+    """t clipped to [0, 1] by its real part (complex steps pass through inside)."""
+    re = np.real(t)
+    return np.where(re < 0.0, 0.0, np.where(re > 1.0, 1.0, t))
+
+
+def _moment_dd(t0, t1):
+    """(M_q(clip t1) - M_q(clip t0))/(t1 - t0) for q = 0..3 (last axis), exact and cancellation-free: the polynomial
+    divided difference between the clipped ends times the fraction of [t0, t1] inside [0, 1]."""
+    c0, c1 = _clip01(t0), _clip01(t1)
+    dt = t1 - t0
+    same = dt == 0
+    frac = np.where(same, np.where((np.real(t0) >= 0) & (np.real(t0) <= 1), 1.0, 0.0),
+                    (c1 - c0) / np.where(same, 1.0, dt))
+    dd = _poly_dd(_MQ, c0[..., None], c1[..., None], first_power=1)
+    return dd * frac[..., None]
+
+
+def _moments(t):
+    return _poly(_MQ, _clip01(t)[..., None], first_power=1)
+
+
+def scalar_dd(f, df, x0, x1):
+    """(f(x1) - f(x0))/(x1 - x0), exact to round-off without cancellation: Gauss-Legendre (8 points) of f' where the
+    relative change is below 5 % (error ~ (dx/x)^16), the difference quotient itself above."""
+    dx = x1 - x0
+    small = np.abs(np.real(dx)) < 0.05 * np.abs(np.real(x0))
+    quad = sum(w * df(x0 + xg * dx) for xg, w in zip(_GL_X, _GL_W))
+    direct = (f(x1) - f(x0)) / np.where(small, 1.0, dx)
+    return np.where(small, quad, direct)
+
+
+def _avf2(x0, x1, y0, y1):
+    """int_0^1 x(tau) y(tau) dtau for x, y linear between their two levels (the AVF weight of a product)."""
+    return (x0 * y0 + x1 * y1) / 3.0 + (x0 * y1 + x1 * y0) / 6.0
+
+
+# -- Catmull-Rom weights of the labels (complex-safe) --------------------------------------------------------------
+
+
+def _element_of(s, ds, n_el):
+    return np.clip(np.floor(np.real(s) / ds).astype(int), 0, n_el - 1)
+
+
+def _fold(rows, n_nodes):
+    """Closed-end ghosts of theory §10.2 folded into the real nodes: rows (..., K, n_nodes + 2) over nodes -1..N+1."""
+    W = rows[..., 1:-1].copy()
+    g0, gN = rows[..., 0], rows[..., -1]
+    W[..., 0] += 3 * g0
+    W[..., 1] -= 3 * g0
+    W[..., 2] += g0
+    N = n_nodes - 1
+    W[..., N] += 3 * gN
+    W[..., N - 1] -= 3 * gN
+    W[..., N - 2] += gN
+    return W
+
+
+def label_weights(s, n_nodes, ds, elements=None):
+    """Dense Catmull-Rom weights W (..., K, n_nodes) with X(s_k) = W_k . r (any complex s; the element of each label
+    from its real part, or ``elements``)."""
+    s = np.asarray(s)
+    e = _element_of(s, ds, n_nodes - 1) if elements is None else elements
+    t = s / ds - e
+    rows = np.zeros(s.shape + (n_nodes + 2,), dtype=np.result_type(s, float))
+    idx = np.broadcast_to(e, s.shape)
+    for i in range(4):
+        val = _poly(_CR[i], t)
+        np.put_along_axis(rows, (idx + i)[..., None], np.take_along_axis(rows, (idx + i)[..., None], -1) + val[..., None], -1)
+    return _fold(rows, n_nodes)
+
+
+def _scatter_basis(out, e, coef):
+    """out[..., e + i] += coef[i] for the four Catmull-Rom nodes e-1..e+2 (padded index e + i)."""
+    for i in range(4):
+        idx = np.broadcast_to(e + i, coef[i].shape)[..., None]
+        np.put_along_axis(out, idx, np.take_along_axis(out, idx, -1) + coef[i][..., None], -1)
+
+
+def label_weights_dd(s0, s1, n_nodes, ds):
+    """Dense divided differences (N_i(s1) - N_i(s0))/(s1 - s0) (..., K, n_nodes), exact and cancellation-free: per
+    element crossed, the polynomial divided difference between the piece's ends times the piece's share of the step.
+    ``s0`` real (the level), ``s1`` possibly complex; the pieces from the real parts."""
+    s0 = np.asarray(s0, dtype=float)
+    s1 = np.asarray(s1)
+    shape = np.broadcast_shapes(s0.shape, s1.shape)
+    s0, s1 = np.broadcast_to(s0, shape), np.broadcast_to(s1, shape)
+    n_el = n_nodes - 1
+    e0 = _element_of(s0, ds, n_el)
+    e1 = _element_of(s1, ds, n_el)
+    out = np.zeros(shape + (n_nodes + 2,), dtype=np.result_type(s1, float))
+    same = e0 == e1
+    up = e1 > e0
+    dsv = np.where(same, 1.0, s1 - s0)
+    # the piece on the first element: from s0 to s1 (same element) or to the element's end the step leaves by
+    a = s0 / ds - e0
+    b = np.where(same, s1 / ds - e0, np.where(up, 1.0, 0.0))
+    frac = np.where(same, 1.0 / ds, (b - a) / dsv)
+    _scatter_basis(out, e0, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+    if not np.all(same):
+        # the piece on the last element, from the end the step enters by to s1
+        a = np.where(up, 0.0, 1.0)
+        b = s1 / ds - e1
+        frac = np.where(same, 0.0, (b - a) / dsv)
+        _scatter_basis(out, e1, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+        for k in zip(*np.nonzero(np.abs(e1 - e0) > 1)):  # whole elements crossed in one step (rare)
+            sign = 1.0 if up[k] else -1.0
+            for e in range(min(e0[k], e1[k]) + 1, max(e0[k], e1[k])):
+                lo, hi = (0.0, 1.0) if up[k] else (1.0, 0.0)
+                for i in range(4):
+                    out[k + (e + i,)] += _poly_dd(_CR[i], np.array(lo), np.array(hi)) * sign / dsv[k]
+    return _fold(out, n_nodes)
+
+
+# -- the step -------------------------------------------------------------------------------------------------------
+
+
+class TubeEMStep:
+    """Energy-momentum stepping of the coupled tube (docs/theory.md §12b); its own state (r, D, v, V, R, R', s, X, X',
+    multipliers)."""
+
+    def __init__(self, model, h, tol=1e-12, max_iter=40):
+        why = supports(model)
+        if why:
+            raise SolverError(why)
+        rod, t = model.rod, model.tube
+        self.model, self.rod, self.t = model, rod, t
+        self.h, self.tol, self.max_iter = float(h), tol, max_iter
+        self.N, self.M, self.ds = rod.N, t.M, rod.ds
+        n1 = self.N + 1
+        self.constrained = bool(rod.constrained)
+        self.Jd = rod.section.J
+        self.Kd = np.zeros(3) if self.constrained else rod.section.K
+        self.m, self.E = director_masses(rod)
+        mbar = np.asarray(t.label_mass_all, dtype=float)
+        self.mbar = mbar[1:-1].copy()  # interior labels (the unknown ones)
+        self.m[0] += mbar[0]  # the end labels sit on the end nodes: X_0 = r_0, X_M = r_N (Catmull-Rom interpolates)
+        self.m[-1] += mbar[-1]
+        self.r, self.D, self.v = rod.r0.copy(), rod.Lam0.copy(), rod.v0 * rod.mask[:, :3]
+        self.V = np.einsum("nij,njk->nik", self.D, _hat(rod.omega0) @ np.eye(3))
+        self.lam = np.zeros((n1, 6))
+        self.mu_rod = np.zeros((self.N, 3))
+        if self.constrained:
+            miss = float(np.max(np.abs(strains(self.r, self.D, self.ds)[1] - CHI)))
+            if miss > 1e-9:
+                raise SolverError(f"rod.constraint: the initial configuration misses Gamma = chi by {miss:.1e}")
+        cfg = t.config(np.concatenate([t.q_init, t.lam_init]))
+        self.s = np.asarray(cfg.s, dtype=float).copy()
+        self.R = np.asarray(cfg.R, dtype=float).copy()
+        self.wall = t.wall if t.has_wall else None
+        self.dyn = bool(t.has_wall and t.wall_dynamic)
+        self.aw = (t.wall.a * t.node_weights) if self.dyn else np.zeros(n1)
+        self.w = np.asarray(t.node_weights, dtype=float)
+        self.Rdot = np.zeros(n1)
+        if self.dyn:
+            self.Rdot = self._wall_rates(t)
+        leg = model.initial_legendre()
+        self.sdot = leg["sdot"][1:-1].copy()
+        self.X = label_weights(self.s[1:-1], n1, self.ds) @ self.r
+        self.Xdot = leg["Xdot"][1:-1].copy()
+        self.nu = np.zeros((self.M - 1, 3))
+        self.eos = t.eos
+        self.incompressible = bool(t.incompressible)
+        self.mk = np.asarray(t.m, dtype=float)
+        self.Sk = np.asarray(t.S, dtype=float) if t.eos is not None else None
+        self.V0 = np.asarray(t.V0, dtype=float) if self.incompressible else None
+        self.mu_liq = np.zeros(self.M)
+        self.p_ext = float(t.p_ext)
+        self.g = np.asarray(rod.g, dtype=float)
+        self.fext = self.m[:, None] * self.g[None, :]
+        self.fext[-1] += rod.force
+        # supports (rod_em's): a pinned node keeps r, a clamped one also its directors and multipliers
+        self.fix_r = np.zeros(n1, bool)
+        self.fix_D = np.zeros(n1, bool)
+        for node, kind in ((0, model.scene.rod.ends.s0), (self.N, model.scene.rod.ends.sL)):
+            self.fix_r[node] |= kind in ("pinned", "clamped")
+            self.fix_D[node] |= kind == "clamped"
+        self.free = not (self.fix_r.any() or self.fix_D.any())
+        self._layout()
+        self.n = 0
+        self._lu = None
+        self._prev = None
+        self.last = dict(iterations=0, jacobians=0, fallback=0)
+        self.stats = dict(iterations=0, jacobians=0, residuals=0)
+        if self.incompressible:
+            # the liquid holds each parcel's volume at t = 0 (a constraint that jumped on the first step would be work
+            # done by the pressures); data whose shape and reference volumes m/rho disagree beyond 1e-6 are refused
+            V_init = self.volumes(self.s, self.R, self.r, self.D)
+            miss = float(np.max(np.abs(V_init / self.V0 - 1.0)))
+            if miss > 1e-6:
+                raise SolverError(f"fluid: the initial parcels miss their reference volumes m/rho by {miss:.1e} (relative)")
+            self.V0 = V_init
+
+    def _wall_rates(self, t):
+        """The initial wall rates R'_j: the tube's initial velocities mapped to the configuration (as its radii are)."""
+        c = t.B @ np.concatenate([t.v_init, np.zeros(len(t.lam_init))])
+        return np.asarray(c[t.index["R"]: t.index["R"] + t.nR], dtype=float).copy()
+
+    # -- layout of the unknowns ------------------------------------------------------------------------------------
+
+    def _layout(self):
+        n1, M = self.N + 1, self.M
+        sizes = [("dr", n1 * 3), ("dD", n1 * 9), ("lam", n1 * 6), ("mu_rod", self.N * 3 if self.constrained else 0),
+                 ("dR", n1 if self.dyn else 0), ("ds", M - 1), ("dX", (M - 1) * 3), ("nu", (M - 1) * 3),
+                 ("mu_liq", M if self.incompressible else 0)]
+        self.sl, o = {}, 0
+        for name, n in sizes:
+            self.sl[name] = slice(o, o + n)
+            o += n
+        self.nz = o
+        # Newton's update size: positions and labels relative to L, radii to R0, directors as they are
+        sc = np.full(o, np.inf)
+        L = self.rod.L
+        sc[self.sl["dr"]] = L
+        sc[self.sl["dD"]] = 1.0
+        sc[self.sl["dR"]] = self.t.R0
+        sc[self.sl["ds"]] = L
+        sc[self.sl["dX"]] = L
+        self.scale = sc
+        self.qmask = np.isfinite(sc)
+        fixed = np.zeros(o, bool)
+        fixed[self.sl["dr"]] = np.repeat(self.fix_r, 3)
+        fixed[self.sl["dD"]] = np.repeat(self.fix_D, 9)
+        fixed[self.sl["lam"]] = np.repeat(self.fix_D, 6)
+        self.fixed = fixed
+
+    def unpack(self, z):
+        """The blocks of z (leading batch axes kept)."""
+        b = z.shape[:-1]
+        n1, M = self.N + 1, self.M
+        out = dict(dr=z[..., self.sl["dr"]].reshape(b + (n1, 3)), dD=z[..., self.sl["dD"]].reshape(b + (n1, 3, 3)),
+                   lam=z[..., self.sl["lam"]].reshape(b + (n1, 6)),
+                   ds=z[..., self.sl["ds"]], dX=z[..., self.sl["dX"]].reshape(b + (M - 1, 3)),
+                   nu=z[..., self.sl["nu"]].reshape(b + (M - 1, 3)))
+        out["mu_rod"] = z[..., self.sl["mu_rod"]].reshape(b + (self.N, 3)) if self.constrained else None
+        out["dR"] = z[..., self.sl["dR"]] if self.dyn else np.zeros(b + (n1,))
+        out["mu_liq"] = z[..., self.sl["mu_liq"]] if self.incompressible else None
+        return out
+
+    def pack(self, dr, dD, lam, dR, ds, dX, nu, mu_rod=None, mu_liq=None):
+        parts = [np.ravel(dr), np.ravel(dD), np.ravel(lam)]
+        if self.constrained:
+            parts.append(np.ravel(self.mu_rod if mu_rod is None else mu_rod))
+        if self.dyn:
+            parts.append(np.ravel(dR))
+        parts += [np.ravel(ds), np.ravel(dX), np.ravel(nu)]
+        if self.incompressible:
+            parts.append(np.ravel(self.mu_liq if mu_liq is None else mu_liq))
+        return np.concatenate(parts).astype(float)
+
+    # -- geometry at one level --------------------------------------------------------------------------------------
+
+    def stretches(self, r, D):
+        """Gamma_e (.., N, 3), |Gamma_e| (.., N) and the nodal stretch gamma_j (.., N+1) of theory §10.3."""
+        G = strains(r, D, self.ds)[1]
+        a = np.sqrt(np.sum(G * G, -1))  # sqrt of the sum of squares (not abs): complex steps pass through
+        gam = np.concatenate([a[..., :1], 0.5 * (a[..., :-1] + a[..., 1:]), a[..., -1:]], -1)
+        return G, a, gam
+
+    def _pairs(self, s_lo, s_hi):
+        """(parcel, element) pairs that parcels [s_lo_k, s_hi_{k+1}] may cover (real bounds)."""
+        e_lo = _element_of(s_lo[:-1], self.ds, self.N)
+        e_hi = _element_of(s_hi[1:], self.ds, self.N)
+        k = np.repeat(np.arange(self.M), e_hi - e_lo + 1)
+        e = np.concatenate([np.arange(a, b + 1) for a, b in zip(e_lo, e_hi)])
+        return k, e
+
+    def volumes(self, s, R, r, D):
+        """Parcel volumes V_k at one level (theory §10.3; any leading batch axes on R, r, D, s)."""
+        _, _, gam = self.stretches(r, D)
+        s_re = np.real(s).reshape(-1, self.M + 1)
+        pk, pe = self._pairs(s_re.min(0), s_re.max(0))
+        return self._volumes_on(s, R, gam, pk, pe)
+
+    def _terms(self, R, gam, pe):
+        """P_(ijl) = R_(e+i) R_(e+j) gamma_(e+l) on each pair's element, with q = i + j + l."""
+        out = []
+        for i in (0, 1):
+            for j in (0, 1):
+                for l in (0, 1):
+                    out.append(((i, j, l), R[..., pe + i] * R[..., pe + j] * gam[..., pe + l]))
+        return out
+
+    def _volumes_on(self, s, R, gam, pk, pe):
+        t_lo = s[..., pk] / self.ds - pe
+        t_hi = s[..., pk + 1] / self.ds - pe
+        S = _moments(t_hi) - _moments(t_lo)  # (.., npairs, 4)
+        Vp = 0.0
+        for (i, j, l), P in self._terms(R, gam, pe):
+            Vp = Vp + P * S[..., i + j + l]
+        Vp = self.ds * np.pi * Vp
+        out = np.zeros(Vp.shape[:-1] + (self.M,), dtype=Vp.dtype)
+        for kk in range(self.M):  # scatter the pairs into parcels (few pairs per parcel)
+            out[..., kk] = Vp[..., pk == kk].sum(-1)
+        return out
+
+    # -- energies --------------------------------------------------------------------------------------------------
+
+    def wall_energy(self, R):
+        if self.wall is None:
+            return 0.0
+        w = self.wall
+        if w.law == "linear":
+            d = (R[..., 1:] - R[..., :-1]) / self.ds
+            return 0.5 * w.beta1 * self.ds * np.sum(d * d, -1) + 0.5 * w.beta2 * np.sum(self.w * (R - self.t.R0) ** 2, -1)
+        A = np.pi * R * R
+        A0 = np.pi * self.t.R0 ** 2
+        d = (A[..., 1:] - A[..., :-1]) / self.ds
+        f = w.stiffness * (2.0 / 3.0 * A ** 1.5 / np.sqrt(A0) - A + A0 / 3.0)
+        return 0.5 * w.tension * self.ds * np.sum(d * d, -1) + np.sum(self.w * f, -1)
+
+    def wall_dd(self, R0, R1):
+        """Discrete gradient of the wall energy in R (exact: quadratic pieces at the midpoint, the tube law's f(A) by
+        the closed-form divided difference of A^(3/2) in sqrt(A))."""
+        out = np.zeros(np.broadcast_shapes(np.shape(R0), np.shape(R1)), dtype=np.result_type(R0, R1))
+        if self.wall is None:
+            return out
+        w = self.wall
+        if w.law == "linear":
+            Rb = 0.5 * (R0 + R1)
+            d = (Rb[..., 1:] - Rb[..., :-1]) / self.ds
+            out[..., 1:] += w.beta1 * d
+            out[..., :-1] -= w.beta1 * d
+            return out + w.beta2 * self.w * (Rb - self.t.R0)
+        A0r = np.pi * self.t.R0 ** 2
+        Aa, Ab = np.pi * R0 * R0, np.pi * R1 * R1
+        dA_dR = np.pi * (R0 + R1)  # Delta A = pi (R0 + R1) Delta R, exact
+        d0 = (Aa[..., 1:] - Aa[..., :-1]) / self.ds
+        d1 = (Ab[..., 1:] - Ab[..., :-1]) / self.ds
+        t = 0.5 * w.tension * (d0 + d1)  # Delta(1/2 T ds d^2) = T ds dbar Delta d, Delta d = (Delta A_b - Delta A_a)/ds
+        gA = np.zeros_like(out)
+        gA[..., 1:] += t
+        gA[..., :-1] -= t
+        a0, a1 = np.sqrt(Aa), np.sqrt(Ab)  # R > 0: sqrt(A) = sqrt(pi) R
+        dd15 = (a0 * a0 + a0 * a1 + a1 * a1) / (a0 + a1)  # (A1^1.5 - A0^1.5)/(A1 - A0)
+        gA += self.w * w.stiffness * (2.0 / 3.0 * dd15 / np.sqrt(A0r) - 1.0)
+        return gA * dA_dR
+
+    def potential(self, r, D, R, s, X):
+        """U(q) of one level (for the energy monitor and the tests' discrete-gradient identity)."""
+        U = potential(r, D, self.ds, self.Jd, self.Kd) + self.wall_energy(R)
+        V = self.volumes(s, R, r, D)
+        if self.eos is not None:
+            U = U + np.sum(self.eos.psi(V, self.mk, self.Sk), -1)
+        U = U + self.p_ext * np.sum(V, -1)
+        return U - np.sum(self.fext * r, (-1, -2)) - np.sum(self.mbar[:, None] * self.g * X, (-1, -2))
+
+    # -- the residual ------------------------------------------------------------------------------------------------
+
+    def _levels(self, z):
+        u = self.unpack(z)
+        s1 = np.concatenate([np.broadcast_to(self.s[0], u["ds"].shape[:-1] + (1,)), self.s[1:-1] + u["ds"],
+                             np.broadcast_to(self.s[-1], u["ds"].shape[:-1] + (1,))], -1)
+        return u, self.r + u["dr"], self.D + u["dD"], self.R + u["dR"], s1, self.X + u["dX"]
+
+    def fluid_discrete_gradient(self, z):
+        """Parcel volumes at both levels and the discrete gradient of sum_k c_k V_k in (s, R, |Gamma_e|), with
+        c_k = dpsi_k (the divided difference of psi) + p_ext - mu_k.  Returns dict(V0, V1, c, gs (.., M-1), gR (.., N+1),
+        gG (.., N): the coefficient of Delta|Gamma_e|)."""
+        u, r1, D1, R1, s1, _ = self._levels(z)
+        _, _, gam0 = self.stretches(self.r, self.D)
+        _, _, gam1 = self.stretches(r1, D1)
+        s1_re = np.real(s1).reshape(-1, self.M + 1)[0]
+        pk, pe = self._pairs(np.minimum(self.s, s1_re), np.maximum(self.s, s1_re))
+        V0 = self._volumes_on(self.s, self.R, gam0, pk, pe)
+        V1 = self._volumes_on(s1, R1, gam1, pk, pe)
+        if self.eos is not None:
+            psi = lambda V: self.eos.psi(V, self.mk, self.Sk)  # noqa: E731
+            dpsi = lambda V: self.eos.dpsi(V, self.mk, self.Sk)[0]  # noqa: E731
+            c = scalar_dd(psi, dpsi, V0, V1)
+        else:
+            c = np.zeros(V1.shape, dtype=V1.dtype)
+        c = c + self.p_ext
+        if self.incompressible:
+            c = c - u["mu_liq"]
+        cp = c[..., pk]  # per pair
+        ds = self.ds
+        # S parts (label coordinates) and their exact divided differences, per pair
+        tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
+        tl1, th1 = s1[..., pk] / ds - pe, s1[..., pk + 1] / ds - pe
+        S0 = _moments(th0) - _moments(tl0)
+        S1 = _moments(th1) - _moments(tl1)
+        Sb = 0.5 * (S0 + S1)
+        ddh, ddl = _moment_dd(th0, th1), _moment_dd(tl0, tl1)
+        terms0 = self._terms(self.R, gam0, pe)
+        terms1 = self._terms(R1, gam1, pe)
+        shp = cp.shape
+        g_hi = np.zeros(shp, dtype=cp.dtype)
+        g_lo = np.zeros(shp, dtype=cp.dtype)
+        gRp = np.zeros(shp + (2,), dtype=cp.dtype)
+        gGp = np.zeros(shp + (2,), dtype=cp.dtype)
+        Rl = [(self.R[..., pe + i], R1[..., pe + i]) for i in (0, 1)]
+        Gl = [(gam0[..., pe + i], gam1[..., pe + i]) for i in (0, 1)]
+        for ((i, j, l), P0), (_, P1) in zip(terms0, terms1):
+            q = i + j + l
+            Pb = 0.5 * (P0 + P1)
+            g_hi = g_hi + Pb * ddh[..., q]
+            g_lo = g_lo - Pb * ddl[..., q]
+            # Delta P = Delta R_i avf(R_j, g_l) + Delta R_j avf(R_i, g_l) + Delta g_l avf(R_i, R_j)
+            gRp[..., i] += Sb[..., q] * _avf2(*Rl[j], *Gl[l])
+            gRp[..., j] += Sb[..., q] * _avf2(*Rl[i], *Gl[l])
+            gGp[..., l] += Sb[..., q] * _avf2(*Rl[i], *Rl[j])
+        k = np.pi * cp  # ds pi c_k; the label rows carry 1/ds from t = s/ds - e
+        g_hi, g_lo = k * g_hi, k * g_lo
+        gRp, gGp = ds * k[..., None] * gRp, ds * k[..., None] * gGp
+        n1 = self.N + 1
+        b = shp[:-1]
+        gs = np.zeros(b + (self.M + 1,), dtype=cp.dtype)
+        gR = np.zeros(b + (n1,), dtype=cp.dtype)
+        gg = np.zeros(b + (n1,), dtype=cp.dtype)
+        for p_, (kk, ee) in enumerate(zip(pk, pe)):
+            gs[..., kk + 1] += g_hi[..., p_]
+            gs[..., kk] += g_lo[..., p_]
+            gR[..., ee] += gRp[..., p_, 0]
+            gR[..., ee + 1] += gRp[..., p_, 1]
+            gg[..., ee] += gGp[..., p_, 0]
+            gg[..., ee + 1] += gGp[..., p_, 1]
+        # nodal stretch -> element stretches: gamma_0 = |G_0|, gamma_N = |G_(N-1)|, else the mean of the two
+        gG = 0.5 * (gg[..., :-1] + gg[..., 1:])
+        gG[..., 0] += 0.5 * gg[..., 0]
+        gG[..., -1] += 0.5 * gg[..., -1]
+        return dict(V0=V0, V1=V1, c=c, gs=gs[..., 1:-1], gR=gR, gG=gG)
+
+    def label_constraint(self, u, r1, D1, s1, X1):
+        """c_k(q_1) and the discrete derivative's forces on (r, D, s, X) from nu (theory §12b)."""
+        n1 = self.N + 1
+        sk0, sk1 = self.s[1:-1], s1[..., 1:-1]
+        e = self._frame_nodes
+        W0 = label_weights(sk0, n1, self.ds)
+        W1 = label_weights(sk1, n1, self.ds)
+        De0, De1 = self.D[e], D1[..., e, :, :]
+        c1 = np.einsum("...kji,...kj->...ki", De1, X1 - W1 @ r1)
+        nu = u["nu"]
+        Db = 0.5 * (De0 + De1)
+        Wb = 0.5 * (W0 + W1)
+        rb = 0.5 * (self.r + r1)
+        Xb = 0.5 * (self.X + X1)
+        Dnu = np.einsum("...kij,...kj->...ki", Db, nu)
+        FX = Dnu
+        Fr = -np.einsum("...ki,...kc->...ic", Wb, Dnu)
+        xk = Xb - Wb @ rb
+        FD = np.zeros(r1.shape[:-1] + (3, 3), dtype=np.result_type(r1, nu, D1))
+        self._add_frames(FD, e, xk[..., :, None] * nu[..., None, :])
+        # y_i = D_e^T r_i at both levels; F_s = -sum_i DD_i ybar_i . nu
+        y0 = np.einsum("kji,nj->kni", De0, self.r)
+        y1 = np.einsum("...kji,...nj->...kni", De1, r1)
+        yb = 0.5 * (y0 + y1)
+        DD = label_weights_dd(sk0, sk1, n1, self.ds)
+        Fs = -np.einsum("...kn,...kni,...ki->...k", DD, yb, nu)
+        return c1, Fr, FD, Fs, FX
+
+    @staticmethod
+    def _add_frames(FD, e, vals):
+        for kk, node in enumerate(e):
+            FD[..., node, :, :] += vals[..., kk, :, :]
+
+    def residual(self, z):
+        """R(z) (.., nz) from the current level; z the increments and multipliers (layout :meth:`unpack`)."""
+        h = self.h
+        u, r1, D1, R1, s1, X1 = self._levels(z)
+        self._frame_nodes = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+        fl = self.fluid_discrete_gradient(z)
+        # the fluid reaches the rod through |Gamma_e|: a stress gG_e/ds along (Gamma^0 + Gamma^1)/(|Gamma^0| + |Gamma^1|)
+        G0, a0, _ = self.stretches(self.r, self.D)
+        G1, a1, _ = self.stretches(r1, D1)
+        ghat = (G0 + G1) / (a0 + a1)[..., None]
+        stress = (fl["gG"] / self.ds)[..., None] * ghat
+        if u["mu_rod"] is not None:
+            stress = stress + u["mu_rod"]
+        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd, stress)
+        c1, Fr_c, FD_c, Fs_c, FX_c = self.label_constraint(u, r1, D1, s1, X1)
+        lam = u["lam"]
+        Db = 0.5 * (self.D + D1)
+        Sm = np.stack([np.stack([2 * lam[..., 0], lam[..., 3], lam[..., 4]], -1),
+                       np.stack([lam[..., 3], 2 * lam[..., 1], lam[..., 5]], -1),
+                       np.stack([lam[..., 4], lam[..., 5], 2 * lam[..., 2]], -1)], -2)
+        Rr = (2.0 / h) * self.m[:, None] * (u["dr"] - h * self.v) + h * (Fr + Fr_c - self.fext)
+        RD = (2.0 / h) * self.E[:, None, :] * (u["dD"] - h * self.V) + h * (FD + FD_c + Db @ Sm)
+        C = _T(D1) @ D1
+        Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
+        b = z.shape[:-1]
+        parts = [Rr.reshape(b + (-1,)), RD.reshape(b + (-1,)), Rl.reshape(b + (-1,))]
+        if self.constrained:
+            parts.append((strains(r1, D1, self.ds)[1] - CHI).reshape(b + (-1,)))
+        if self.dyn:
+            parts.append((2.0 / h) * self.aw * (u["dR"] - h * self.Rdot) + h * (self.wall_dd(self.R, R1) + fl["gR"]))
+        parts.append(h * (fl["gs"] + Fs_c))
+        parts.append(((2.0 / h) * self.mbar[:, None] * (u["dX"] - h * self.Xdot) + h * (FX_c - self.mbar[:, None] * self.g)).reshape(b + (-1,)))
+        parts.append(c1.reshape(b + (-1,)))
+        if self.incompressible:
+            parts.append(fl["V1"] - self.V0)
+        out = np.concatenate(parts, -1)
+        if np.any(self.fixed):
+            out[..., self.fixed] = z[..., self.fixed]
+        return out
+
+    # -- Newton ------------------------------------------------------------------------------------------------------
+
+    def jacobian(self, z, chunk=64):
+        """Dense Jacobian by complex step (exact to round-off), in batches of ``chunk`` columns."""
+        n = self.nz
+        J = np.empty((n, n))
+        eps = 1e-30
+        for a in range(0, n, chunk):
+            cols = np.arange(a, min(n, a + chunk))
+            zc = np.repeat(z[None, :].astype(complex), len(cols), 0)
+            zc[np.arange(len(cols)), cols] += 1j * eps
+            J[:, cols] = (self.residual(zc).imag / eps).T
+            self.stats["residuals"] += len(cols)
+        return J
+
+    def _factor(self, z):
+        J = self.jacobian(z)
+        rs = np.max(np.abs(J), 1)
+        rs[rs == 0] = 1.0
+        Jr = J / rs[:, None]
+        cs = np.max(np.abs(Jr), 0)
+        cs[cs == 0] = 1.0
+        try:
+            lu = sla.lu_factor(Jr / cs[None, :], check_finite=True)
+        except (ValueError, sla.LinAlgError) as exc:
+            raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
+        self.stats["jacobians"] += 1
+        return lu, rs, cs
+
+    def _update(self, R):
+        lu, rs, cs = self._lu
+        return sla.lu_solve(lu, -R / rs) / cs
+
+    def _solve(self, z, chord):
+        sc, qm = self.scale, self.qmask
+        last, fresh, stale = np.inf, False, 0
+        for it in range(1, self.max_iter + 1):
+            R = self.residual(z)
+            self.stats["residuals"] += 1
+            if not np.all(np.isfinite(R)):
+                raise SolverError(f"step {self.n + 1}: non-finite residual")
+            if self._lu is None or not chord:
+                self._lu = self._factor(z)
+                fresh, stale = True, 0
+            stale += 1
+            dz = self._update(R)
+            size = float(np.max(np.abs(dz[qm]) / sc[qm]))
+            if not np.isfinite(size):
+                raise SolverError(f"step {self.n + 1}: singular Newton matrix")
+            if size >= last and last < 1e3 * self.tol:
+                if last > self.tol and chord and not fresh:
+                    self._lu, last = None, np.inf
+                    continue
+                return z, it
+            if size > last and fresh and chord:
+                raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
+            z = z + dz
+            if size < 1e-3 * self.tol:
+                return z, it
+            if chord and it > 1 and not fresh and last >= self.tol and (size > 0.5 * last or stale >= 20):
+                self._lu = None
+            fresh = False
+            last = size
+        if last < 1e3 * self.tol:
+            return z, self.max_iter
+        raise SolverError(f"step {self.n + 1}: Newton did not converge in {self.max_iter} iterations (update {last:.2e})")
+
+    def _predict_rigid(self):
+        from .lie import cay
+
+        W = self.body_angular_velocity()
+        return self.pack(self.h * self.v, self.D @ cay(self.h * W) - self.D, self.lam, self.h * self.Rdot,
+                         self.h * self.sdot, self.h * self.Xdot, self.nu)
+
+    def _predict(self):
+        if self._prev is None:
+            return self._predict_rigid()
+        dr, Dp, dR, ds, dX = self._prev
+        return self.pack(dr, self.D @ (_T(Dp) @ self.D) - self.D, self.lam, dR, ds, dX, self.nu)
+
+    def body_angular_velocity(self):
+        A = _T(self.D) @ self.V
+        return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+
+    def step(self):
+        """Advance one step; returns the Newton iterations.  Chord Newton from the predictor, full Newton on failure."""
+        h = self.h
+        jac0 = self.stats["jacobians"]
+        fallback = 0
+        try:
+            z, it = self._solve(self._predict(), chord=True)
+        except SolverError as exc:
+            fallback = 1
+            for start in (self._predict, self._predict_rigid):
+                self._lu = None
+                try:
+                    z, it = self._solve(start(), chord=False)
+                    break
+                except SolverError as e:
+                    exc = e
+            else:
+                self._lu = None
+                raise exc
+        z[self.fixed] = 0.0
+        u = self.unpack(z)
+        self.v = 2.0 * u["dr"] / h - self.v
+        self.V = 2.0 * u["dD"] / h - self.V
+        self.Xdot = 2.0 * u["dX"] / h - self.Xdot
+        self.sdot = 2.0 * u["ds"] / h - self.sdot  # the predictor's label rate (s has no inertia of its own)
+        if self.dyn:
+            self.Rdot = 2.0 * u["dR"] / h - self.Rdot
+        self._prev = (u["dr"].copy(), self.D, u["dR"].copy(), u["ds"].copy(), u["dX"].copy())
+        self.r, self.D = self.r + u["dr"], self.D + u["dD"]
+        self.R = self.R + u["dR"]
+        self.s = self.s.copy()
+        self.s[1:-1] += u["ds"]
+        self.X = self.X + u["dX"]
+        self.lam, self.nu = u["lam"].copy(), u["nu"].copy()
+        if self.constrained:
+            self.mu_rod = u["mu_rod"].copy()
+        if self.incompressible:
+            self.mu_liq = u["mu_liq"].copy()
+        W = self.body_angular_velocity()
+        self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
+        self.n += 1
+        self.stats["iterations"] += it
+        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
+        return it
+
+    # -- the stepper's state ---------------------------------------------------------------------------------------
+
+    def step_state(self, st, model):
+        """One step, returned as the stepper's :class:`varint.stepper.State`: q (the tube's free labels and radii, the
+        rod's frames and positions), p (label momenta mbar X'.X_s, wall momenta a w R', node momenta m v + the
+        labels' sum_k mbar_k N_j(s_k) X'_k, body angular momenta), lam (the liquid's pressures).  A state at another
+        level is a resumed run, restored from its data (:meth:`state_data`)."""
+        from .rod import pack_level
+        from .stepper import State
+
+        if st.n != self.n:
+            if not st.data or "tem_r" not in st.data:
+                raise SolverError("time.scheme: 'energy-momentum' cannot restart from this checkpoint (it lacks the "
+                                  "step's own state: written by an older varint)")
+            self.restore(st.data, st.n)
+        self.step()
+        t = self.t
+        q, p, lam = st.q.copy(), st.p.copy(), st.lam.copy()
+        cfg = np.concatenate([self.s, self.R] + ([self.mu_liq] if self.incompressible else []))
+        ztube = t.B.T @ (cfg - t.c0)
+        nq = len(t.q_init)
+        q[model.tube_q] = ztube[:nq]
+        lam[model.tube_lam] = ztube[nq:]
+        from .coupled_geometry import centreline_and_weights
+
+        nodes, Nw, _, _, dX, _ = centreline_and_weights(self.s, self.r, self.ds)
+        Xdot = np.concatenate([self.v[:1], self.Xdot, self.v[-1:]])
+        mb = np.asarray(t.label_mass_all, dtype=float)
+        rates = np.zeros(len(cfg))
+        rates[: self.M + 1] = mb * np.sum(Xdot * dX, 1)
+        rates[self.M + 1: self.M + 1 + len(self.R)] = self.aw * self.Rdot
+        p[model.tube_p] = (t.B.T @ rates)[:nq]
+        q[model.rod_q] = pack_level(self.D, self.r)
+        prod = self.m[:, None] * self.v
+        inner = (mb[1:-1, None] * Nw[1:-1])[:, :, None] * self.Xdot[:, None, :]
+        np.add.at(prod, nodes[1:-1].ravel(), inner.reshape(-1, 3))
+        Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),
+                                                      np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum(1))
+        p[model.rod_p] = np.concatenate([prod.ravel(), Pi.ravel()])
+        data = dict(st.data or {})
+        data.update(self.state_data())
+        return State(self.n, self.n * self.h, q, p, lam, st.v, st.q.copy(), data)
+
+    #: the step's own state beyond (q, p), for checkpoints
+    _STATE = ("r", "D", "v", "V", "lam", "mu_rod", "R", "Rdot", "s", "sdot", "X", "Xdot", "nu", "mu_liq")
+
+    def state_data(self):
+        data = {f"tem_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
+        if self._prev is not None:
+            for k, v in zip(("dr", "D", "dR", "ds", "dX"), self._prev):
+                data[f"tem_prev_{k}"] = np.asarray(v, dtype=float).ravel()
+        return data
+
+    def restore(self, data, n):
+        """Continue from :meth:`state_data` at level n; the kept factorisation is dropped."""
+        for k in self._STATE:
+            cur = getattr(self, k)
+            setattr(self, k, np.array(data[f"tem_{k}"], dtype=float).reshape(np.shape(cur)))
+        self._prev = None
+        if "tem_prev_dr" in data:
+            shapes = (self.r.shape, self.D.shape, self.R.shape, (self.M - 1,), self.X.shape)
+            self._prev = tuple(np.array(data[f"tem_prev_{k}"], dtype=float).reshape(sh)
+                               for k, sh in zip(("dr", "D", "dR", "ds", "dX"), shapes))
+        self.n = int(n)
+        self._lu = None
+
+    # -- monitors ----------------------------------------------------------------------------------------------------
+
+    def kinetic_energy(self):
+        return float(0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
+                     + 0.5 * np.sum(self.aw * self.Rdot ** 2) + 0.5 * np.sum(self.mbar * np.sum(self.Xdot ** 2, 1)))
+
+    def energy(self):
+        """The conserved total energy: kinetic (constant metric) + U (rod, wall, fluid, p_ext, loads)."""
+        return self.kinetic_energy() + float(self.potential(self.r, self.D, self.R, self.s, self.X))
+
+    def linear_momentum(self):
+        return (self.m[:, None] * self.v).sum(0) + (self.mbar[:, None] * self.Xdot).sum(0)
+
+    def angular_momentum(self):
+        return (np.cross(self.r, self.m[:, None] * self.v).sum(0)
+                + np.cross(np.swapaxes(self.D, 1, 2), np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum((0, 1))
+                + np.cross(self.X, self.mbar[:, None] * self.Xdot).sum(0))
+
+    def label_constraint_residual(self):
+        W = label_weights(self.s[1:-1], self.N + 1, self.ds)
+        return float(np.max(np.abs(self.X - W @ self.r))) if self.M > 1 else 0.0
+
+    def monitors(self):
+        """The stepper's monitors for the coupled tube (the names of ``Simulation._coupled_monitors``): the conserved
+        energy and its parts, the momenta of rod and fluid, mass, entropy, the liquid's volume residual."""
+        rod = self.rod
+        mb = np.asarray(self.t.label_mass_all, dtype=float)
+        Kr = 0.5 * float(np.sum(rod.node_mass * np.sum(self.v ** 2, 1)) + np.sum(self.E[:, None, :] * self.V ** 2))
+        Kf = 0.5 * float(np.sum(self.mbar * np.sum(self.Xdot ** 2, 1)) + mb[0] * self.v[0] @ self.v[0]
+                         + mb[-1] * self.v[-1] @ self.v[-1])
+        Kw = 0.5 * float(np.sum(self.aw * self.Rdot ** 2))
+        U = float(self.potential(self.r, self.D, self.R, self.s, self.X))
+        P = self.linear_momentum()
+        J = self.angular_momentum()
+        mtot = self.m.sum() + self.mbar.sum()
+        rc = ((self.m[:, None] * self.r).sum(0) + (self.mbar[:, None] * self.X).sum(0)) / mtot
+        out = {"energy": Kr + Kf + Kw + U, "kinetic_energy": Kr + Kf + Kw, "energy_rod_kinetic": Kr,
+               "energy_fluid_kinetic": Kf, "energy_wall_kinetic": Kw, "energy_potential": U,
+               "linear_momentum": P, "angular_momentum": J, "angular_momentum_cm": J - np.cross(rc, P),
+               "frame_orthogonality": float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3)))),
+               "label_constraint": self.label_constraint_residual(),
+               "mass": float(np.sum(rod.node_mass) + np.sum(self.mk))}
+        if self.eos is not None and self.eos.has_entropy:
+            out["entropy"] = float(np.sum(self.mk * self.Sk))
+        if self.incompressible:
+            V = self.volumes(self.s, self.R, self.r, self.D)
+            out["constraint_residual"] = float(np.max(np.abs(V / self.V0 - 1.0)))
+        return out
