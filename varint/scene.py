@@ -174,8 +174,9 @@ SCHEMA = MappingProxyType({
     "time": (
         _pos("step", "s", "time step h"),
         _pos("end", "s", "final time"),
-        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': the rod "
-            "alone (no tip torque; shearable or rod.constraint) with energy and momenta conserved at any step (docs/theory.md §12a)",
+        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': energy and "
+            "momenta conserved at any step, for the rod (no tip torque; shearable or rod.constraint; docs/theory.md §12a) and the "
+            "coupled tube with closed ends and a rigid or dynamic wall (§12b)",
             choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
