@@ -291,6 +291,9 @@ def _scene_text(**changes):
          "fluid": dict(GAS, parcels=6, velocity=1.0), "wall": dict(WALL, model="dynamic"),
          "time": {"step": 2e-3, "end": 0.02, "scheme": "energy-momentum"}}
     for key, val in changes.items():
+        if "." not in key:
+            d[key] = val
+            continue
         sec, k = key.split(".", 1)
         d[sec][k] = val
     return to_toml(d)
@@ -315,6 +318,16 @@ def test_a_scene_file_runs_writes_hdf5_and_resumes_bit_for_bit(tmp_path):
     E = a["monitors"]["energy"]
     assert np.max(np.abs(E / E[0] - 1)) < 1e-13
     assert np.all(np.isfinite(a["fields"]["fluid/pressure"]))
+
+
+def test_varint_check_reports_the_step_s_own_unknowns():
+    """`varint check` (Model.describe) counts what the energy-momentum step solves for, not the midpoint's layout."""
+    liquid = dict(LIQUID, parcels=6)
+    for text in (_scene_text(), _scene_text(**{"fluid": liquid})):
+        model = build_model(parse_scene(text))
+        d = model.describe()
+        assert d["unknowns_total"] == TubeEMStep(model, 2e-3).nz
+        assert {"X", "s", "label_constraint", "directors"} <= set(d["unknowns"])
 
 
 @pytest.mark.parametrize("change, words", [

@@ -297,8 +297,32 @@ class Model:
             for k in ("wall", "fluid"):
                 if k in td:
                     d[k] = td[k]
+        if self.scheme == "energy-momentum":
+            # the energy-momentum step solves for its own unknowns (docs/theory.md §12a-§12b), not the midpoint's layout
+            d["unknowns"], d["inertial_unknowns"], d["algebraic_unknowns"] = energy_momentum_unknowns(self)
+            d["unknowns_total"] = d["inertial_unknowns"] + d["algebraic_unknowns"]
         d["scheme"] = self.scheme
         return d
+
+
+def energy_momentum_unknowns(model):
+    """The energy-momentum step's unknowns per block (varint/rod_em.py, varint/tube_em.py): ``(counts, inertial,
+    algebraic)``.  Supports keep their rows (as trivial equations), so every node counts."""
+    rod, t = model.rod, model.tube
+    n1 = rod.N + 1
+    inertial = {"r": 3 * n1, "directors": 9 * n1}
+    algebraic = {"orthonormality": 6 * n1}
+    if rod.constrained:
+        algebraic["n"] = 3 * rod.N  # the element forces that hold Gamma = chi
+    if model.coupled:
+        if t.has_wall and t.wall_dynamic:
+            inertial["R"] = n1
+        inertial["s"] = t.M - 1  # interior labels: the reference coordinate (no inertia of its own) and the position
+        inertial["X"] = 3 * (t.M - 1)
+        algebraic["label_constraint"] = 3 * (t.M - 1)
+        if t.incompressible:
+            algebraic["mu"] = t.M
+    return {**inertial, **algebraic}, sum(inertial.values()), sum(algebraic.values())
 
 
 def build_model(scene):
