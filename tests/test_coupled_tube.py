@@ -30,12 +30,12 @@ WALL = {"law": "linear", "thickness": 1.0e-3, "density": 1200.0, "youngs_modulus
 
 
 def coupled_scene(nodes=7, parcels=8, fluid=GAS, wall=None, ends=("free", "free"), initial=None, gravity=None,
-                  dimension=3, h=1e-3, end=1.0, velocity=0.0, radius=0.02, section=None, length=1.0):
+                  dimension=3, h=1e-3, end=1.0, velocity=0.0, radius=0.02, section=None, length=1.0, scheme="midpoint"):
     rod = dict(section or SECTION, dimension=dimension, ends={"s0": ends[0], "sL": ends[1]})
     if initial:
         rod["initial"] = initial
     d = {"title": "coupled", "tube": {"length": length, "nodes": nodes, "radius": radius}, "rod": rod,
-         "fluid": dict(fluid, parcels=parcels, velocity=velocity), "time": {"step": h, "end": end}}
+         "fluid": dict(fluid, parcels=parcels, velocity=velocity), "time": {"step": h, "end": end, "scheme": scheme}}
     if ends == ("periodic", "periodic"):  # a periodic tube: the rod and the fluid both
         d["fluid"]["ends"] = {"s0": "periodic", "sL": "periodic"}
     if wall is not None:
@@ -265,28 +265,34 @@ def _release_from_mode(model, shape_of, amp=1e-4):
     rod.set_configuration(rod.Lam0 @ cay(u[:, 3:]), rod.r0 + u[:, :3], rest=True)
 
 
-def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
-    """docs/theory.md §10.7a, outside truth.  A clamped-free tube of water, labels on the nodes (M = N): to
-    first order the labels stay at rest and the liquid adds rho_f A_f to rho A.  The coupled run's first
-    bending frequency equals (i) that of the rod lattice with rho A + rho_f A_f, run the same way, up to
-    the second-order effects of the amplitude, and (ii) the Timoshenko cantilever's with that mass
-    (varint.analysis.timoshenko_cantilever) up to the lattice's O(ds^2) and the step's O((w h)^2) errors."""
-    N, L, R, h, steps = 30, 1.0, 0.01, 4e-3, 1000
+def liquid_cantilever(N, h, R=0.01, L=1.0, rho_f=1000.0, scheme="midpoint"):
+    """The water-filled cantilever of docs/theory.md §10.7a (clamped-free, planar, labels on the nodes) and the rod
+    lattice with the liquid's mass rho_f A_f added to rho A, both released from the latter's first mode.  Returns
+    (coupled, heavy, Timoshenko's first frequency with that mass)."""
     sec = dict(SECTION, mass_per_length=0.3, bending_stiffness=2.0, rotary_inertia=1e-5)
-    rho_f = 1000.0
     added = rho_f * math.pi * R * R
     coupled = coupled_scene(nodes=N + 1, parcels=N, fluid=dict(LIQUID, density=rho_f), ends=("clamped", "free"),
-                            radius=R, section=sec, dimension=2, h=h, length=L)
+                            radius=R, section=sec, dimension=2, h=h, length=L, scheme=scheme)
     heavy = build_model(parse_scene(to_toml({
         "title": "the rod with the liquid's mass", "tube": {"length": L, "nodes": N + 1, "radius": R},
         "rod": dict(sec, mass_per_length=sec["mass_per_length"] + added, dimension=2,
                     ends={"s0": "clamped", "sL": "free"}), "time": {"step": h, "end": 10.0}})))
     _release_from_mode(heavy, heavy)
     _release_from_mode(coupled, heavy)
-    f_rod = tip_frequency(heavy, steps)
-    f_coupled = tip_frequency(coupled, steps)
     f_beam = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"] + added,
                                    sec["rotary_inertia"], L, count=1)[0]
+    return coupled, heavy, f_beam
+
+
+def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
+    """docs/theory.md §10.7a, outside truth.  A clamped-free tube of water, labels on the nodes (M = N): to
+    first order the labels stay at rest and the liquid adds rho_f A_f to rho A.  The coupled run's first
+    bending frequency equals (i) that of the rod lattice with rho A + rho_f A_f, run the same way, up to
+    the second-order effects of the amplitude, and (ii) the Timoshenko cantilever's with that mass
+    (varint.analysis.timoshenko_cantilever) up to the lattice's O(ds^2) and the step's O((w h)^2) errors."""
+    coupled, heavy, f_beam = liquid_cantilever(N=30, h=4e-3)
+    f_rod = tip_frequency(heavy, 1000)
+    f_coupled = tip_frequency(coupled, 1000)
     assert f_coupled == pytest.approx(f_rod, rel=1e-6)
     assert f_coupled == pytest.approx(f_beam, rel=1e-3)
 
