@@ -462,7 +462,8 @@ class _Validator:
         if sc.rod is not None:
             self.rod_checks(sc)
         elif sc.time.scheme == "energy-momentum":
-            self.bad("time.scheme", "'energy-momentum' is for a [rod] (alone) in this version")
+            self.bad("time.scheme", "'energy-momentum' needs a [rod] in this version (the rod alone, or the rod with [fluid] "
+                     "and [wall]: the coupled tube)")
         if sc.tube.area_table is not None:
             self.check_area_table(sc.tube.area_table, L)
             if sc.wall is not None:
