@@ -36,7 +36,8 @@ complex step, so the step suits tubes of tens of elements (the rod alone has the
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from .errors import SolverError
 from .rod_em import CHI, _PAIRS, _T, _hat, director_masses, discrete_gradient, potential, strains
@@ -224,13 +225,14 @@ class TubeEMStep:
     """Energy-momentum stepping of the coupled tube (docs/theory.md §12b); its own state (r, D, v, V, R, R', s, X, X',
     multipliers)."""
 
-    def __init__(self, model, h, tol=1e-12, max_iter=40):
+    def __init__(self, model, h, tol=1e-12, max_iter=40, body=True):
         why = supports(model)
         if why:
             raise SolverError(why)
         rod, t = model.rod, model.tube
         self.model, self.rod, self.t = model, rod, t
         self.h, self.tol, self.max_iter = float(h), tol, max_iter
+        self.body = bool(body)
         self.N, self.M, self.ds = rod.N, t.M, rod.ds
         n1 = self.N + 1
         self.constrained = bool(rod.constrained)
@@ -328,6 +330,24 @@ class TubeEMStep:
         fixed[self.sl["dD"]] = np.repeat(self.fix_D, 9)
         fixed[self.sl["lam"]] = np.repeat(self.fix_D, 6)
         self.fixed = fixed
+        # locations of the unknowns for the sparse Jacobian (:meth:`jacobian_sparse`), one per kind and place: node n's
+        # (dr, dD), its lam, its dR; element e's mu_rod; interior label k's ds, dX, nu; parcel k's mu_liq
+        N = self.N
+        first, o2 = {}, 0
+        for name, count, per in (("dr", n1, 3), ("lam", n1, 6), ("dR", n1, 1), ("mu_rod", N, 3), ("ds", M - 1, 1),
+                                 ("dX", M - 1, 3), ("nu", M - 1, 3), ("mu_liq", M, 1)):
+            first[name] = o2
+            o2 += count
+        first["dD"] = first["dr"]
+        self.loc_first, self.n_loc = first, o2
+        loc = np.empty(o, int)
+        for name, per in (("dr", 3), ("dD", 9), ("lam", 6), ("mu_rod", 3), ("dR", 1), ("ds", 1), ("dX", 3), ("nu", 3),
+                          ("mu_liq", 1)):
+            sl = self.sl[name]
+            loc[sl] = first[name] + np.arange(sl.stop - sl.start) // per
+        self.loc_of = loc
+        self._colouring = {}
+        self.stats_pattern = dict(checks=0, misses=0, colours=0)
 
     def unpack(self, z):
         """The blocks of z (leading batch axes kept)."""
@@ -601,36 +621,182 @@ class TubeEMStep:
 
     # -- Newton ------------------------------------------------------------------------------------------------------
 
-    def jacobian(self, z, chunk=64):
-        """Dense Jacobian by complex step (exact to round-off), in batches of ``chunk`` columns."""
+    def jacobian(self, z, chunk=64, body=False):
+        """Dense Jacobian by complex step (exact to round-off), in batches of ``chunk`` columns (the reference for
+        :meth:`jacobian_sparse`, and its fallback); with ``body`` T^T J T."""
         n = self.nz
         J = np.empty((n, n))
         eps = 1e-30
         for a in range(0, n, chunk):
             cols = np.arange(a, min(n, a + chunk))
-            zc = np.repeat(z[None, :].astype(complex), len(cols), 0)
-            zc[np.arange(len(cols)), cols] += 1j * eps
-            J[:, cols] = (self.residual(zc).imag / eps).T
+            E = np.zeros((len(cols), n))
+            E[np.arange(len(cols)), cols] = 1.0
+            if body:
+                E = self._rotate(E)
+            Rc = self.residual(z[None, :] + 1j * eps * E).imag / eps
+            J[:, cols] = (self._rotate(Rc, transpose=True) if body else Rc).T
             self.stats["residuals"] += len(cols)
         return J
 
+    # -- the sparse Jacobian ------------------------------------------------------------------------------------------
+
+    def _cliques(self, z):
+        """The Jacobian's pattern by location (:meth:`_layout`) at the real iterate z, as blocks (rows, cols, hub):
+        the rows of every location in ``rows`` may read the columns of every location in ``cols`` (hub False), or
+        (hub True) the locations in ``cols`` read all of ``rows`` and all of ``rows`` read ``cols`` (a star):
+
+        * each node's (r, D), lam and R, all together (the orthonormality rows, the multipliers' forces); each
+          element's nodes' (r, D) and mu_rod (the discrete gradient, the strain constraint, the fluid's stress
+          direction); the wall's neighbouring radii;
+        * each label's constraint, a star: its s, X, nu and its frame node's (r, D) read, and are read by, the (r, D)
+          of the Catmull-Rom nodes e-1..e+2 of every element between its two levels (the nodes' forces -W^T D_e nu
+          read no other node);
+        * each (parcel, element) pair of the volumes, a star: the s of labels k, k+1, the radii of nodes e, e+1 and
+          the parcel's multiplier read, and are read by, the (r, D) of nodes e-1..e+2 (the nodal stretch reads the
+          elements on both sides; the stretch's coefficient reads no stretch); for a gas or barotropic liquid all
+          pairs of a parcel in one full block instead (psi's divided difference reads the whole parcel's volume).
+
+        The elements and pairs are those of the real parts, as the residual finds them (the complex step does not
+        move them)."""
+        N, M, ds, f = self.N, self.M, self.ds, self.loc_first
+
+        def nodes(kind, a, b):
+            return tuple(range(f[kind] + max(a, 0), f[kind] + min(b, N) + 1))
+
+        s0 = self.s
+        s1 = s0.copy()
+        s1[1:-1] += np.real(z[self.sl["ds"]])
+        full = [(f["dr"] + n, f["lam"] + n, f["dR"] + n) for n in range(N + 1)]
+        full += [(f["dr"] + e, f["dr"] + e + 1, f["mu_rod"] + e) for e in range(N)]
+        full += [(f["dR"] + e, f["dR"] + e + 1) for e in range(N)]
+        out = [(c, c, False) for c in full]
+        fr = np.clip(np.rint(s0[1:-1] / ds).astype(int), 0, N)
+        e0, e1 = _element_of(s0[1:-1], ds, N), _element_of(s1[1:-1], ds, N)
+        for kk in range(M - 1):
+            lo, hi = min(e0[kk], e1[kk]), max(e0[kk], e1[kk])
+            out.append((nodes("dr", lo - 1, hi + 2), (f["ds"] + kk, f["dX"] + kk, f["nu"] + kk, f["dr"] + fr[kk]), True))
+        pk, pe = self._pairs(np.minimum(s0, s1), np.maximum(s0, s1))
+        per_parcel = [set() for _ in range(M)]
+        for k, e in zip(pk, pe):
+            hub = (nodes("dR", e, e + 1) + (f["mu_liq"] + k,) + ((f["ds"] + k - 1,) if k >= 1 else ())
+                   + ((f["ds"] + k,) if k <= M - 2 else ()))
+            if self.eos is not None:
+                per_parcel[k].update(nodes("dr", e - 1, e + 2) + hub)
+            else:
+                out.append((nodes("dr", e - 1, e + 2), hub, True))
+        if self.eos is not None:
+            out += [(tuple(sorted(c)), tuple(sorted(c)), False) for c in per_parcel]
+        return tuple(out)
+
+    def _plan(self, z):
+        """(colour of each column, number of colours, rows, cols of the pattern) for the pattern at z (cached): a
+        greedy colouring of the locations (largest first), each location's unknowns on distinct colours, two
+        locations on disjoint colours when some row location reads both."""
+        key = self._cliques(z)
+        plan = self._colouring.get(key)
+        if plan is not None:
+            return plan
+        P = np.zeros((self.n_loc, self.n_loc), bool)
+        for rows, cols, hub in key:
+            rows, cols = list(rows), list(cols)
+            if hub:
+                allr = rows + cols
+                P[np.ix_(allr, cols)] = True
+                P[np.ix_(cols, allr)] = True
+            else:
+                P[np.ix_(rows, cols)] = True
+        Pi = P.astype(np.int32)
+        conflict = (Pi.T @ Pi) > 0
+        size = np.bincount(self.loc_of, minlength=self.n_loc)
+        members = [np.nonzero(self.loc_of == a)[0] for a in range(self.n_loc)]
+        colour = np.full(self.nz, -1)
+        loc_col = [None] * self.n_loc
+        for a in np.argsort(-size, kind="stable"):
+            if size[a] == 0:
+                continue
+            busy = np.zeros(self.nz + 1, bool)
+            for b in np.nonzero(conflict[a])[0]:
+                if loc_col[b] is not None:
+                    busy[loc_col[b]] = True
+            loc_col[a] = np.nonzero(~busy)[0][: size[a]]
+            colour[members[a]] = loc_col[a]
+        rows, cols = np.nonzero(P[self.loc_of][:, self.loc_of])
+        plan = (colour, int(colour.max()) + 1, rows, cols)
+        if len(self._colouring) > 256:
+            self._colouring.clear()
+        self._colouring[key] = plan
+        return plan
+
+    def _rotate(self, x, transpose=False):
+        """T x (or T^T x) over the last axis: the rod's dr_n, dD_n and the labels' dX_k turned by the level's
+        directors (D_n, D_n (x) I, D_e of the label's frame node); the rest (multipliers, R, s, nu) as they are."""
+        D = _T(self.D) if transpose else self.D
+        n1, b = self.N + 1, x.shape[:-1]
+        out = x.copy()
+        sl = self.sl["dr"]
+        out[..., sl] = np.einsum("nab,...nb->...na", D, x[..., sl].reshape(b + (n1, 3))).reshape(b + (-1,))
+        sl = self.sl["dD"]
+        out[..., sl] = (D @ x[..., sl].reshape(b + (n1, 3, 3))).reshape(b + (-1,))
+        if self.M > 1:
+            fr = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+            sl = self.sl["dX"]
+            out[..., sl] = np.einsum("kab,...kb->...ka", D[fr], x[..., sl].reshape(b + (self.M - 1, 3))).reshape(b + (-1,))
+        return out
+
+    def jacobian_sparse(self, z, body=False):
+        """Sparse Jacobian by complex step with a colouring of the columns (:meth:`_plan`): one batched residual per
+        colour.  With ``body``, T^T J T (:meth:`_rotate`: Newton's matrix in the level's body frames, which does not
+        turn with a rigidly turning tube, so a factorisation survives across the steps of a spinning tube as
+        varint.rod_em.RodEMStep's does); T is block-diagonal by location and the pattern is by location, so the
+        colouring separates T's columns too.  A random direction rides in the same batch: its directional
+        derivative must match J w row by row, else the pattern missed an entry, the miss is counted and the dense
+        complex-step Jacobian used instead (never a silently dropped entry)."""
+        colour, nc, rows, cols = self._plan(z)
+        n, eps = self.nz, 1e-30
+        w = np.random.default_rng(self.n + 12345).standard_normal(n)
+        E = np.zeros((nc + 1, n))
+        E[colour, np.arange(n)] = 1.0
+        E[-1] = w
+        if body:
+            E = self._rotate(E)
+        Rc = self.residual(z[None, :] + 1j * eps * E).imag / eps
+        self.stats["residuals"] += nc + 1
+        if body:
+            Rc = self._rotate(Rc, transpose=True)
+        J = sp.csr_matrix((Rc[colour[cols], rows], (rows, cols)), shape=(n, n))
+        ref = Rc[-1]
+        err = np.abs(J @ w - ref)
+        scale = abs(J) @ np.abs(w)
+        self.stats_pattern["checks"] += 1
+        self.stats_pattern["colours"] = nc
+        if np.all(err <= 1e-8 * scale + 1e-13 * scale.max()):
+            return J
+        self.stats_pattern["misses"] += 1
+        return sp.csr_matrix(self.jacobian(z, body=body))
+
     def _factor(self, z):
-        J = self.jacobian(z)
-        rs = np.max(np.abs(J), 1)
+        J = self.jacobian_sparse(z, body=self.body)
+        rs = abs(J).max(axis=1).toarray().ravel()
         rs[rs == 0] = 1.0
-        Jr = J / rs[:, None]
-        cs = np.max(np.abs(Jr), 0)
+        Jr = sp.diags(1.0 / rs) @ J
+        cs = abs(Jr).max(axis=0).toarray().ravel()
         cs[cs == 0] = 1.0
+        Jr = (Jr @ sp.diags(1.0 / cs)).tocsc()
+        if not np.all(np.isfinite(Jr.data)):
+            raise SolverError(f"step {self.n + 1}: non-finite Newton matrix")
         try:
-            lu = sla.lu_factor(Jr / cs[None, :], check_finite=True)
-        except (ValueError, sla.LinAlgError) as exc:
+            lu = spla.splu(Jr)
+        except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
             raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
         self.stats["jacobians"] += 1
         return lu, rs, cs
 
     def _update(self, R):
         lu, rs, cs = self._lu
-        return sla.lu_solve(lu, -R / rs) / cs
+        if self.body:
+            R = self._rotate(R, transpose=True)
+        du = lu.solve(-R / rs) / cs
+        return self._rotate(du) if self.body else du
 
     def _solve(self, z, chord):
         sc, qm = self.scale, self.qmask
@@ -679,6 +845,50 @@ class TubeEMStep:
         dr, Dp, dR, ds, dX = self._prev
         return self.pack(dr, self.D @ (_T(Dp) @ self.D) - self.D, self.lam, dR, ds, dX, self.nu)
 
+    def _momentum_residuals(self, z):
+        """The step's linear and angular momentum balances from their closed forms (the internal and constraint
+        forces' sums vanish identically, theory §12a): the inertial and load terms of the rod's and the labels' rows
+        only, so they carry the round-off of the momenta, not that of the stiff forces."""
+        h = self.h
+        u = self.unpack(z)
+        rb, Db, Xb = self.r + 0.5 * u["dr"], self.D + 0.5 * u["dD"], self.X + 0.5 * u["dX"]
+        fr = (2.0 / h) * self.m[:, None] * (u["dr"] - h * self.v) - h * self.fext
+        fD = (2.0 / h) * self.E[:, None, :] * (u["dD"] - h * self.V)
+        fX = (2.0 / h) * self.mbar[:, None] * (u["dX"] - h * self.Xdot) - h * self.mbar[:, None] * self.g
+        P = fr.sum(0) + fX.sum(0)
+        J = (np.cross(rb, fr).sum(0) + np.cross(np.swapaxes(Db, 1, 2), np.swapaxes(fD, 1, 2)).sum((0, 1))
+             + np.cross(Xb, fX).sum(0))
+        return P, J, rb, Db, Xb
+
+    def _polish_rigid(self, z):
+        """One correction of the solution in the six rigid directions (dr += a + w x rbar, dd_i += w x dbar_i,
+        dX += a + w x Xbar) that zeroes the momentum balances of :meth:`_momentum_residuals`, as
+        varint.rod_em.RodEMStep._polish_rigid: Newton's last update leaves the full residual at its floor, and in the
+        body frames the chord matrix is not the exact one in the rigid directions, so the momenta would keep that
+        floor (~1e-14 |J|) instead of the momenta's round-off.  The correction is of the floor's size."""
+        P, J, rb, Db, Xb = self._momentum_residuals(z)
+        m, mb = self.m, self.mbar
+        eye = np.eye(3)
+        Mt = m.sum() + mb.sum()
+        S = (m[:, None] * rb).sum(0) + (mb[:, None] * Xb).sum(0)
+        Il = np.einsum("n,nk,nl->kl", m, rb, rb) + np.einsum("n,nk,nl->kl", mb, Xb, Xb)
+        Il = eye * np.trace(Il) - Il
+        d = np.swapaxes(Db, 1, 2)
+        Id = np.einsum("ni,nik,nil->kl", self.E, d, d)
+        Il += eye * np.trace(Id) - Id
+        A = np.zeros((6, 6))
+        A[:3, :3] = Mt * eye
+        A[:3, 3:] = -_hat(S)
+        A[3:, :3] = _hat(S)
+        A[3:, 3:] = Il
+        aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
+        a, w = aw[:3], aw[3:]
+        z = z.copy()
+        z[self.sl["dr"]] += (a + np.cross(w, rb)).ravel()
+        z[self.sl["dD"]] += np.swapaxes(np.cross(w, d), 1, 2).reshape(-1)
+        z[self.sl["dX"]] += (a + np.cross(w, Xb)).ravel()
+        return z
+
     def body_angular_velocity(self):
         A = _T(self.D) @ self.V
         return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
@@ -703,6 +913,8 @@ class TubeEMStep:
                 self._lu = None
                 raise exc
         z[self.fixed] = 0.0
+        if self.free:
+            z = self._polish_rigid(z)
         u = self.unpack(z)
         self.v = 2.0 * u["dr"] / h - self.v
         self.V = 2.0 * u["dD"] / h - self.V
