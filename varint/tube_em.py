@@ -78,30 +78,34 @@ def supports(model):
 # -- exact, cancellation-free divided differences ------------------------------------------------------------------
 
 
-def _power_dd(a, b, n):
-    """(b^n - a^n)/(b - a) = sum_i a^i b^(n-1-i), exact for a = b too."""
-    out = np.zeros(np.broadcast_shapes(np.shape(a), np.shape(b)), dtype=np.result_type(a, b, float))
-    for i in range(n):
-        out = out + a ** i * b ** (n - 1 - i)
-    return out
+def _pows_dd(a, b, n):
+    """(b^p - a^p)/(b - a) = sum_i a^i b^(p-1-i) for p = 1..n on a new last axis, exact for a = b too (by
+    dd_p = a dd_(p-1) + b^(p-1))."""
+    a, b = np.broadcast_arrays(a, b)
+    dd = [np.ones(a.shape, dtype=np.result_type(a, b, float))]
+    bp = b
+    for _ in range(1, n):
+        dd.append(a * dd[-1] + bp)
+        bp = bp * b
+    return np.stack(dd, -1)
 
 
-def _poly(c, t, first_power=0):
-    """sum_p c[..., p] t^(p + first_power) (c's last axis the powers)."""
-    out = 0.0
-    for p in range(c.shape[-1]):
-        out = out + c[..., p] * t ** (p + first_power)
-    return out
+def _pows(t, lo, hi):
+    """t^p for p = lo..hi on a new last axis."""
+    out = [np.ones_like(t) if lo == 0 else t ** lo]
+    for _ in range(lo, hi):
+        out.append(out[-1] * t)
+    return np.stack(out, -1)
 
 
-def _poly_dd(c, a, b, first_power=0):
-    """The divided difference of _poly(c, ., first_power) between a and b, without cancellation."""
-    out = 0.0
-    for p in range(c.shape[-1]):
-        n = p + first_power
-        if n:
-            out = out + c[..., p] * _power_dd(a, b, n)
-    return out
+def _cr(t):
+    """The four Catmull-Rom weights (nodes e-1..e+2) at local coordinates t (.., 4)."""
+    return np.einsum("...p,ip->...i", _pows(t, 0, 3), _CR)
+
+
+def _cr_dd(a, b):
+    """Their divided differences between a and b (.., 4), without cancellation."""
+    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), _CR[:, 1:])
 
 
 def _clip01(t):
@@ -118,12 +122,12 @@ def _moment_dd(t0, t1):
     same = dt == 0
     frac = np.where(same, np.where((np.real(t0) >= 0) & (np.real(t0) <= 1), 1.0, 0.0),
                     (c1 - c0) / np.where(same, 1.0, dt))
-    dd = _poly_dd(_MQ, c0[..., None], c1[..., None], first_power=1)
+    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), _MQ)
     return dd * frac[..., None]
 
 
 def _moments(t):
-    return _poly(_MQ, _clip01(t)[..., None], first_power=1)
+    return np.einsum("...p,qp->...q", _pows(_clip01(t), 1, 4), _MQ)
 
 
 def scalar_dd(f, df, x0, x1):
@@ -134,6 +138,33 @@ def scalar_dd(f, df, x0, x1):
     quad = sum(w * df(x0 + xg * dx) for xg, w in zip(_GL_X, _GL_W))
     direct = (f(x1) - f(x0)) / np.where(small, 1.0, dx)
     return np.where(small, quad, direct)
+
+
+_Q = np.add.outer(np.add.outer(np.arange(2), np.arange(2)), np.arange(2))  # q = i + j + l
+
+
+def _ends(x, pe):
+    """x at the two nodes of each pair's element (.., npairs, 2)."""
+    return np.stack([x[..., pe], x[..., pe + 1]], -1)
+
+
+def _triple(Rp, Gp):
+    """P_(ijl) = R_i R_j gamma_l (.., npairs, 2, 2, 2) from the pairs' end values."""
+    return Rp[..., :, None, None] * Rp[..., None, :, None] * Gp[..., None, None, :]
+
+
+def _scatter(x, idx, n):
+    """out[..., i] = sum of x[..., p] over p with idx[p] = i (the pairs summed into parcels, labels or nodes), by
+    bincount on the real and imaginary parts (no BLAS call: a threaded BLAS stalls on small products when the
+    machine is loaded)."""
+    b = x.shape[:-1]
+    B = int(np.prod(b, dtype=int))
+    flat = (np.arange(B)[:, None] * n + idx[None, :]).ravel()
+    x2 = x.reshape(B, -1)
+    out = np.bincount(flat, x2.real.ravel(), B * n)
+    if np.iscomplexobj(x):
+        out = out + 1j * np.bincount(flat, x2.imag.ravel(), B * n)
+    return out.reshape(b + (n,))
 
 
 def _avf2(x0, x1, y0, y1):
@@ -169,18 +200,15 @@ def label_weights(s, n_nodes, ds, elements=None):
     e = _element_of(s, ds, n_nodes - 1) if elements is None else elements
     t = s / ds - e
     rows = np.zeros(s.shape + (n_nodes + 2,), dtype=np.result_type(s, float))
-    idx = np.broadcast_to(e, s.shape)
-    for i in range(4):
-        val = _poly(_CR[i], t)
-        np.put_along_axis(rows, (idx + i)[..., None], np.take_along_axis(rows, (idx + i)[..., None], -1) + val[..., None], -1)
+    val = _cr(t)
+    np.put_along_axis(rows, np.broadcast_to(e, s.shape)[..., None] + np.arange(4), val, -1)
     return _fold(rows, n_nodes)
 
 
 def _scatter_basis(out, e, coef):
-    """out[..., e + i] += coef[i] for the four Catmull-Rom nodes e-1..e+2 (padded index e + i)."""
-    for i in range(4):
-        idx = np.broadcast_to(e + i, coef[i].shape)[..., None]
-        np.put_along_axis(out, idx, np.take_along_axis(out, idx, -1) + coef[i][..., None], -1)
+    """out[..., e + i] += coef[..., i] for the four Catmull-Rom nodes e-1..e+2 (padded index e + i)."""
+    idx = np.broadcast_to(e[..., None] + np.arange(4), coef.shape)
+    np.put_along_axis(out, idx, np.take_along_axis(out, idx, -1) + coef, -1)
 
 
 def label_weights_dd(s0, s1, n_nodes, ds):
@@ -202,19 +230,18 @@ def label_weights_dd(s0, s1, n_nodes, ds):
     a = s0 / ds - e0
     b = np.where(same, s1 / ds - e0, np.where(up, 1.0, 0.0))
     frac = np.where(same, 1.0 / ds, (b - a) / dsv)
-    _scatter_basis(out, e0, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+    _scatter_basis(out, e0, _cr_dd(a, b) * frac[..., None])
     if not np.all(same):
         # the piece on the last element, from the end the step enters by to s1
         a = np.where(up, 0.0, 1.0)
         b = s1 / ds - e1
         frac = np.where(same, 0.0, (b - a) / dsv)
-        _scatter_basis(out, e1, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+        _scatter_basis(out, e1, _cr_dd(a, b) * frac[..., None])
         for k in zip(*np.nonzero(np.abs(e1 - e0) > 1)):  # whole elements crossed in one step (rare)
             sign = 1.0 if up[k] else -1.0
             for e in range(min(e0[k], e1[k]) + 1, max(e0[k], e1[k])):
                 lo, hi = (0.0, 1.0) if up[k] else (1.0, 0.0)
-                for i in range(4):
-                    out[k + (e + i,)] += _poly_dd(_CR[i], np.array(lo), np.array(hi)) * sign / dsv[k]
+                out[k + (slice(e, e + 4),)] += _cr_dd(np.array(lo), np.array(hi)) * sign / dsv[k]
     return _fold(out, n_nodes)
 
 
@@ -233,6 +260,7 @@ class TubeEMStep:
         self.model, self.rod, self.t = model, rod, t
         self.h, self.tol, self.max_iter = float(h), tol, max_iter
         self.body = bool(body)
+        self.rate_refresh = 0.5  # chord: a new Jacobian when an update shrinks less than this
         self.N, self.M, self.ds = rod.N, t.M, rod.ds
         n1 = self.N + 1
         self.constrained = bool(rod.constrained)
@@ -287,6 +315,7 @@ class TubeEMStep:
         self.n = 0
         self._lu = None
         self._prev = None
+        self._lvl = None
         self.last = dict(iterations=0, jacobians=0, fallback=0)
         self.stats = dict(iterations=0, jacobians=0, residuals=0)
         if self.incompressible:
@@ -397,27 +426,12 @@ class TubeEMStep:
         pk, pe = self._pairs(s_re.min(0), s_re.max(0))
         return self._volumes_on(s, R, gam, pk, pe)
 
-    def _terms(self, R, gam, pe):
-        """P_(ijl) = R_(e+i) R_(e+j) gamma_(e+l) on each pair's element, with q = i + j + l."""
-        out = []
-        for i in (0, 1):
-            for j in (0, 1):
-                for l in (0, 1):
-                    out.append(((i, j, l), R[..., pe + i] * R[..., pe + j] * gam[..., pe + l]))
-        return out
-
     def _volumes_on(self, s, R, gam, pk, pe):
         t_lo = s[..., pk] / self.ds - pe
         t_hi = s[..., pk + 1] / self.ds - pe
         S = _moments(t_hi) - _moments(t_lo)  # (.., npairs, 4)
-        Vp = 0.0
-        for (i, j, l), P in self._terms(R, gam, pe):
-            Vp = Vp + P * S[..., i + j + l]
-        Vp = self.ds * np.pi * Vp
-        out = np.zeros(Vp.shape[:-1] + (self.M,), dtype=Vp.dtype)
-        for kk in range(self.M):  # scatter the pairs into parcels (few pairs per parcel)
-            out[..., kk] = Vp[..., pk == kk].sum(-1)
-        return out
+        Vp = self.ds * np.pi * np.sum(_triple(_ends(R, pe), _ends(gam, pe)) * S[..., _Q], (-3, -2, -1))
+        return _scatter(Vp, pk, self.M)  # the pairs summed into their parcels
 
     # -- energies --------------------------------------------------------------------------------------------------
 
@@ -478,16 +492,44 @@ class TubeEMStep:
                              np.broadcast_to(self.s[-1], u["ds"].shape[:-1] + (1,))], -1)
         return u, self.r + u["dr"], self.D + u["dD"], self.R + u["dR"], s1, self.X + u["dX"]
 
+    def _level0(self):
+        """The level's own quantities, the same for every residual of a step (stretches, label weights, frame
+        nodes and their directors), kept while the level's arrays are the same objects (a step and a restore put
+        new ones in place; nothing changes them in place)."""
+        key = (self.r, self.D, self.s, self.R)
+        c = self._lvl
+        if c is None or any(a is not b for a, b in zip(c["key"], key)):
+            G0, a0, gam0 = self.stretches(self.r, self.D)
+            fr = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+            c = dict(key=key, G0=G0, a0=a0, gam0=gam0, fr=fr, De0=self.D[fr],
+                     W0=label_weights(self.s[1:-1], self.N + 1, self.ds), pairs={})
+            self._lvl = c
+        return c
+
+    def _pairs0(self, lvl, pk, pe):
+        """Per (parcel, element) pair at the level (cached with :meth:`_level0`): V0, S0, the label coordinates,
+        the radii and nodal stretches at the element's ends."""
+        key = (pk.tobytes(), pe.tobytes())
+        out = lvl["pairs"].get(key)
+        if out is None:
+            ds = self.ds
+            tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
+            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe), S0=_moments(th0) - _moments(tl0),
+                       tl0=tl0, th0=th0, R0p=_ends(self.R, pe), G0p=_ends(lvl["gam0"], pe))
+            lvl["pairs"][key] = out
+        return out
+
     def fluid_discrete_gradient(self, z):
         """Parcel volumes at both levels and the discrete gradient of sum_k c_k V_k in (s, R, |Gamma_e|), with
         c_k = dpsi_k (the divided difference of psi) + p_ext - mu_k.  Returns dict(V0, V1, c, gs (.., M-1), gR (.., N+1),
         gG (.., N): the coefficient of Delta|Gamma_e|)."""
         u, r1, D1, R1, s1, _ = self._levels(z)
-        _, _, gam0 = self.stretches(self.r, self.D)
+        lvl = self._level0()
         _, _, gam1 = self.stretches(r1, D1)
         s1_re = np.real(s1).reshape(-1, self.M + 1)[0]
         pk, pe = self._pairs(np.minimum(self.s, s1_re), np.maximum(self.s, s1_re))
-        V0 = self._volumes_on(self.s, self.R, gam0, pk, pe)
+        p0 = self._pairs0(lvl, pk, pe)
+        V0 = p0["V0"]
         V1 = self._volumes_on(s1, R1, gam1, pk, pe)
         if self.eos is not None:
             psi = lambda V: self.eos.psi(V, self.mk, self.Sk)  # noqa: E731
@@ -501,45 +543,32 @@ class TubeEMStep:
         cp = c[..., pk]  # per pair
         ds = self.ds
         # S parts (label coordinates) and their exact divided differences, per pair
-        tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
+        tl0, th0 = p0["tl0"], p0["th0"]
         tl1, th1 = s1[..., pk] / ds - pe, s1[..., pk + 1] / ds - pe
-        S0 = _moments(th0) - _moments(tl0)
+        S0 = p0["S0"]
         S1 = _moments(th1) - _moments(tl1)
         Sb = 0.5 * (S0 + S1)
         ddh, ddl = _moment_dd(th0, th1), _moment_dd(tl0, tl1)
-        terms0 = self._terms(self.R, gam0, pe)
-        terms1 = self._terms(R1, gam1, pe)
-        shp = cp.shape
-        g_hi = np.zeros(shp, dtype=cp.dtype)
-        g_lo = np.zeros(shp, dtype=cp.dtype)
-        gRp = np.zeros(shp + (2,), dtype=cp.dtype)
-        gGp = np.zeros(shp + (2,), dtype=cp.dtype)
-        Rl = [(self.R[..., pe + i], R1[..., pe + i]) for i in (0, 1)]
-        Gl = [(gam0[..., pe + i], gam1[..., pe + i]) for i in (0, 1)]
-        for ((i, j, l), P0), (_, P1) in zip(terms0, terms1):
-            q = i + j + l
-            Pb = 0.5 * (P0 + P1)
-            g_hi = g_hi + Pb * ddh[..., q]
-            g_lo = g_lo - Pb * ddl[..., q]
-            # Delta P = Delta R_i avf(R_j, g_l) + Delta R_j avf(R_i, g_l) + Delta g_l avf(R_i, R_j)
-            gRp[..., i] += Sb[..., q] * _avf2(*Rl[j], *Gl[l])
-            gRp[..., j] += Sb[..., q] * _avf2(*Rl[i], *Gl[l])
-            gGp[..., l] += Sb[..., q] * _avf2(*Rl[i], *Rl[j])
+        # P_(ijl) = R_i R_j gamma_l on the pair's element (i, j, l in {0, 1}: its two nodes), q = i + j + l
+        R0p, R1p = p0["R0p"], _ends(R1, pe)
+        G0p, G1p = p0["G0p"], _ends(gam1, pe)
+        Pb = 0.5 * (_triple(R0p, G0p) + _triple(R1p, G1p))
+        g_hi = np.sum(Pb * ddh[..., _Q], (-3, -2, -1))
+        g_lo = -np.sum(Pb * ddl[..., _Q], (-3, -2, -1))
+        # Delta P = Delta R_i avf(R_j, g_l) + Delta R_j avf(R_i, g_l) + Delta g_l avf(R_i, R_j); S_q symmetric in i, j
+        SbQ = Sb[..., _Q]
+        gRp = 2.0 * np.sum(SbQ * _avf2(R0p[..., None, :, None], R1p[..., None, :, None], G0p[..., None, None, :],
+                                       G1p[..., None, None, :]), (-2, -1))
+        gGp = np.sum(SbQ * _avf2(R0p[..., :, None, None], R1p[..., :, None, None], R0p[..., None, :, None],
+                                 R1p[..., None, :, None]), (-3, -2))
         k = np.pi * cp  # ds pi c_k; the label rows carry 1/ds from t = s/ds - e
         g_hi, g_lo = k * g_hi, k * g_lo
         gRp, gGp = ds * k[..., None] * gRp, ds * k[..., None] * gGp
         n1 = self.N + 1
-        b = shp[:-1]
-        gs = np.zeros(b + (self.M + 1,), dtype=cp.dtype)
-        gR = np.zeros(b + (n1,), dtype=cp.dtype)
-        gg = np.zeros(b + (n1,), dtype=cp.dtype)
-        for p_, (kk, ee) in enumerate(zip(pk, pe)):
-            gs[..., kk + 1] += g_hi[..., p_]
-            gs[..., kk] += g_lo[..., p_]
-            gR[..., ee] += gRp[..., p_, 0]
-            gR[..., ee + 1] += gRp[..., p_, 1]
-            gg[..., ee] += gGp[..., p_, 0]
-            gg[..., ee + 1] += gGp[..., p_, 1]
+        # the pairs summed into labels k, k + 1 and nodes e, e + 1
+        gs = _scatter(np.concatenate([g_lo, g_hi], -1), np.concatenate([pk, pk + 1]), self.M + 1)
+        gR = _scatter(np.concatenate([gRp[..., 0], gRp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
+        gg = _scatter(np.concatenate([gGp[..., 0], gGp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
         # nodal stretch -> element stretches: gamma_0 = |G_0|, gamma_N = |G_(N-1)|, else the mean of the two
         gG = 0.5 * (gg[..., :-1] + gg[..., 1:])
         gG[..., 0] += 0.5 * gg[..., 0]
@@ -550,11 +579,12 @@ class TubeEMStep:
         """c_k(q_1) and the discrete derivative's forces on (r, D, s, X) from nu (theory §12b)."""
         n1 = self.N + 1
         sk0, sk1 = self.s[1:-1], s1[..., 1:-1]
-        e = self._frame_nodes
-        W0 = label_weights(sk0, n1, self.ds)
+        lvl = self._level0()
+        e = lvl["fr"]
+        W0 = lvl["W0"]
         W1 = label_weights(sk1, n1, self.ds)
-        De0, De1 = self.D[e], D1[..., e, :, :]
-        c1 = np.einsum("...kji,...kj->...ki", De1, X1 - W1 @ r1)
+        De0, De1 = lvl["De0"], D1[..., e, :, :]
+        c1 = np.einsum("...kji,...kj->...ki", De1, X1 - np.einsum("...kn,...nc->...kc", W1, r1))
         nu = u["nu"]
         Db = 0.5 * (De0 + De1)
         Wb = 0.5 * (W0 + W1)
@@ -563,15 +593,13 @@ class TubeEMStep:
         Dnu = np.einsum("...kij,...kj->...ki", Db, nu)
         FX = Dnu
         Fr = -np.einsum("...ki,...kc->...ic", Wb, Dnu)
-        xk = Xb - Wb @ rb
+        xk = Xb - np.einsum("...kn,...nc->...kc", Wb, rb)
         FD = np.zeros(r1.shape[:-1] + (3, 3), dtype=np.result_type(r1, nu, D1))
         self._add_frames(FD, e, xk[..., :, None] * nu[..., None, :])
-        # y_i = D_e^T r_i at both levels; F_s = -sum_i DD_i ybar_i . nu
-        y0 = np.einsum("kji,nj->kni", De0, self.r)
-        y1 = np.einsum("...kji,...nj->...kni", De1, r1)
-        yb = 0.5 * (y0 + y1)
+        # y_i = D_e^T r_i at both levels; F_s = -sum_i DD_i ybar_i . nu = -(1/2) sum_l (DD r_l) . (D_e^l nu), l = 0, 1
         DD = label_weights_dd(sk0, sk1, n1, self.ds)
-        Fs = -np.einsum("...kn,...kni,...ki->...k", DD, yb, nu)
+        Fs = -0.5 * (np.einsum("...kj,kji,...ki->...k", np.einsum("...kn,nj->...kj", DD, self.r), De0, nu)
+                     + np.einsum("...kj,...kji,...ki->...k", np.einsum("...kn,...nj->...kj", DD, r1), De1, nu))
         return c1, Fr, FD, Fs, FX
 
     @staticmethod
@@ -583,10 +611,11 @@ class TubeEMStep:
         """R(z) (.., nz) from the current level; z the increments and multipliers (layout :meth:`unpack`)."""
         h = self.h
         u, r1, D1, R1, s1, X1 = self._levels(z)
-        self._frame_nodes = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+        lvl = self._level0()
+        self._frame_nodes = lvl["fr"]
         fl = self.fluid_discrete_gradient(z)
         # the fluid reaches the rod through |Gamma_e|: a stress gG_e/ds along (Gamma^0 + Gamma^1)/(|Gamma^0| + |Gamma^1|)
-        G0, a0, _ = self.stretches(self.r, self.D)
+        G0, a0 = lvl["G0"], lvl["a0"]
         G1, a1, _ = self.stretches(r1, D1)
         ghat = (G0 + G1) / (a0 + a1)[..., None]
         stress = (fl["gG"] / self.ds)[..., None] * ghat
@@ -824,7 +853,7 @@ class TubeEMStep:
             z = z + dz
             if size < 1e-3 * self.tol:
                 return z, it
-            if chord and it > 1 and not fresh and last >= self.tol and (size > 0.5 * last or stale >= 20):
+            if chord and it > 1 and not fresh and last >= self.tol and (size > self.rate_refresh * last or stale >= 20):
                 self._lu = None
             fresh = False
             last = size
