@@ -415,9 +415,10 @@ class TubeEMStep:
         """(parcel, element) pairs that parcels [s_lo_k, s_hi_{k+1}] may cover (real bounds)."""
         e_lo = _element_of(s_lo[:-1], self.ds, self.N)
         e_hi = _element_of(s_hi[1:], self.ds, self.N)
-        k = np.repeat(np.arange(self.M), e_hi - e_lo + 1)
-        e = np.concatenate([np.arange(a, b + 1) for a, b in zip(e_lo, e_hi)])
-        return k, e
+        count = e_hi - e_lo + 1
+        k = np.repeat(np.arange(self.M), count)
+        first = np.cumsum(count) - count  # each parcel's first pair
+        return k, e_lo[k] + np.arange(len(k)) - first[k]
 
     def volumes(self, s, R, r, D):
         """Parcel volumes V_k at one level (theory §10.3; any leading batch axes on R, r, D, s)."""
@@ -519,13 +520,14 @@ class TubeEMStep:
             lvl["pairs"][key] = out
         return out
 
-    def fluid_discrete_gradient(self, z):
+    def fluid_discrete_gradient(self, z, gam1=None):
         """Parcel volumes at both levels and the discrete gradient of sum_k c_k V_k in (s, R, |Gamma_e|), with
         c_k = dpsi_k (the divided difference of psi) + p_ext - mu_k.  Returns dict(V0, V1, c, gs (.., M-1), gR (.., N+1),
-        gG (.., N): the coefficient of Delta|Gamma_e|)."""
+        gG (.., N): the coefficient of Delta|Gamma_e|).  ``gam1``: the nodal stretches at z's level if known."""
         u, r1, D1, R1, s1, _ = self._levels(z)
         lvl = self._level0()
-        _, _, gam1 = self.stretches(r1, D1)
+        if gam1 is None:
+            _, _, gam1 = self.stretches(r1, D1)
         s1_re = np.real(s1).reshape(-1, self.M + 1)[0]
         pk, pe = self._pairs(np.minimum(self.s, s1_re), np.maximum(self.s, s1_re))
         p0 = self._pairs0(lvl, pk, pe)
@@ -613,10 +615,10 @@ class TubeEMStep:
         u, r1, D1, R1, s1, X1 = self._levels(z)
         lvl = self._level0()
         self._frame_nodes = lvl["fr"]
-        fl = self.fluid_discrete_gradient(z)
+        G1, a1, gam1 = self.stretches(r1, D1)
+        fl = self.fluid_discrete_gradient(z, gam1)
         # the fluid reaches the rod through |Gamma_e|: a stress gG_e/ds along (Gamma^0 + Gamma^1)/(|Gamma^0| + |Gamma^1|)
         G0, a0 = lvl["G0"], lvl["a0"]
-        G1, a1, _ = self.stretches(r1, D1)
         ghat = (G0 + G1) / (a0 + a1)[..., None]
         stress = (fl["gG"] / self.ds)[..., None] * ghat
         if u["mu_rod"] is not None:
