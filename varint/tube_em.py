@@ -360,14 +360,13 @@ class TubeEMStep:
         fixed[self.sl["lam"]] = np.repeat(self.fix_D, 6)
         self.fixed = fixed
         # locations of the unknowns for the sparse Jacobian (:meth:`jacobian_sparse`), one per kind and place: node n's
-        # (dr, dD), its lam, its dR; element e's mu_rod; interior label k's ds, dX, nu; parcel k's mu_liq
+        # dr, dD, lam, dR; element e's mu_rod; interior label k's ds, dX, nu; parcel k's mu_liq
         N = self.N
         first, o2 = {}, 0
-        for name, count, per in (("dr", n1, 3), ("lam", n1, 6), ("dR", n1, 1), ("mu_rod", N, 3), ("ds", M - 1, 1),
-                                 ("dX", M - 1, 3), ("nu", M - 1, 3), ("mu_liq", M, 1)):
+        for name, count in (("dr", n1), ("dD", n1), ("lam", n1), ("dR", n1), ("mu_rod", N), ("ds", M - 1),
+                            ("dX", M - 1), ("nu", M - 1), ("mu_liq", M)):
             first[name] = o2
             o2 += count
-        first["dD"] = first["dr"]
         self.loc_first, self.n_loc = first, o2
         loc = np.empty(o, int)
         for name, per in (("dr", 3), ("dD", 9), ("lam", 6), ("mu_rod", 3), ("dR", 1), ("ds", 1), ("dX", 3), ("nu", 3),
@@ -676,14 +675,14 @@ class TubeEMStep:
         the rows of every location in ``rows`` may read the columns of every location in ``cols`` (hub False), or
         (hub True) the locations in ``cols`` read all of ``rows`` and all of ``rows`` read ``cols`` (a star):
 
-        * each node's (r, D), lam and R, all together (the orthonormality rows, the multipliers' forces); each
-          element's nodes' (r, D) and mu_rod (the discrete gradient, the strain constraint, the fluid's stress
-          direction); the wall's neighbouring radii;
-        * each label's constraint, a star: its s, X, nu and its frame node's (r, D) read, and are read by, the (r, D)
-          of the Catmull-Rom nodes e-1..e+2 of every element between its two levels (the nodes' forces -W^T D_e nu
-          read no other node);
+        * each node's D and lam (the orthonormality rows, the multipliers' forces); each element's nodes' r, D and
+          mu_rod (the discrete gradient, the strain constraint, the fluid's stress direction); the wall's
+          neighbouring radii;
+        * each label's constraint, a star: its s, X, nu and its frame node's D read, and are read by, the r of the
+          Catmull-Rom nodes e-1..e+2 of every element between its two levels (the nodes' forces -W^T D_e nu read
+          no other node, and no r reads another through the label);
         * each (parcel, element) pair of the volumes, a star: the s of labels k, k+1, the radii of nodes e, e+1 and
-          the parcel's multiplier read, and are read by, the (r, D) of nodes e-1..e+2 (the nodal stretch reads the
+          the parcel's multiplier read, and are read by, the r and D of nodes e-1..e+2 (the nodal stretch reads the
           elements on both sides; the stretch's coefficient reads no stretch); for a gas or barotropic liquid all
           pairs of a parcel in one full block instead (psi's divided difference reads the whole parcel's volume).
 
@@ -697,24 +696,24 @@ class TubeEMStep:
         s0 = self.s
         s1 = s0.copy()
         s1[1:-1] += np.real(z[self.sl["ds"]])
-        full = [(f["dr"] + n, f["lam"] + n, f["dR"] + n) for n in range(N + 1)]
-        full += [(f["dr"] + e, f["dr"] + e + 1, f["mu_rod"] + e) for e in range(N)]
+        full = [(f["dD"] + n, f["lam"] + n) for n in range(N + 1)] + [(f["dR"] + n,) for n in range(N + 1)]
+        full += [(f["dr"] + e, f["dr"] + e + 1, f["dD"] + e, f["dD"] + e + 1, f["mu_rod"] + e) for e in range(N)]
         full += [(f["dR"] + e, f["dR"] + e + 1) for e in range(N)]
         out = [(c, c, False) for c in full]
         fr = np.clip(np.rint(s0[1:-1] / ds).astype(int), 0, N)
         e0, e1 = _element_of(s0[1:-1], ds, N), _element_of(s1[1:-1], ds, N)
         for kk in range(M - 1):
             lo, hi = min(e0[kk], e1[kk]), max(e0[kk], e1[kk])
-            out.append((nodes("dr", lo - 1, hi + 2), (f["ds"] + kk, f["dX"] + kk, f["nu"] + kk, f["dr"] + fr[kk]), True))
+            out.append((nodes("dr", lo - 1, hi + 2), (f["ds"] + kk, f["dX"] + kk, f["nu"] + kk, f["dD"] + fr[kk]), True))
         pk, pe = self._pairs(np.minimum(s0, s1), np.maximum(s0, s1))
         per_parcel = [set() for _ in range(M)]
         for k, e in zip(pk, pe):
             hub = (nodes("dR", e, e + 1) + (f["mu_liq"] + k,) + ((f["ds"] + k - 1,) if k >= 1 else ())
                    + ((f["ds"] + k,) if k <= M - 2 else ()))
             if self.eos is not None:
-                per_parcel[k].update(nodes("dr", e - 1, e + 2) + hub)
+                per_parcel[k].update(nodes("dr", e - 1, e + 2) + nodes("dD", e - 1, e + 2) + hub)
             else:
-                out.append((nodes("dr", e - 1, e + 2), hub, True))
+                out.append((nodes("dr", e - 1, e + 2) + nodes("dD", e - 1, e + 2), hub, True))
         if self.eos is not None:
             out += [(tuple(sorted(c)), tuple(sorted(c)), False) for c in per_parcel]
         return tuple(out)
