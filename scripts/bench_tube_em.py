@@ -5,7 +5,8 @@ Cases: the garden hose of scripts/tube_em_hard_cases.py (free, arc released spin
 incompressible water, 20 and 6 elements, at h = 5 ms; a gas-filled 6-element tube spinning freely (the tests' model).
 The ratio is fair on a shared machine, the absolute times are not.
 
-Run:  python scripts/bench_tube_em.py --rev c6b4956 [--rounds 3] [--steps 20]
+Run:  python scripts/bench_tube_em.py --rev c6b4956 [--rounds 3] [--steps 20] [--cases "20 el.,6 el."]
+      python scripts/bench_tube_em.py --frames      (Newton in the body frames against the spatial frames, both now)
 """
 
 from __future__ import annotations
@@ -27,26 +28,33 @@ def cases():
 
     return {"hose, water, 20 el.": lambda: scene("liquid", 5e-3, nodes=21, scheme="energy-momentum"),
             "hose, water, 6 el.": lambda: scene("liquid", 5e-3, nodes=7, scheme="energy-momentum"),
-            "hose, air, 20 el.": lambda: scene("air", 5e-3, nodes=21, scheme="energy-momentum")}
+            "hose, air, 20 el.": lambda: scene("air", 5e-3, nodes=21, scheme="energy-momentum"),
+            "hose, water, 40 el.": lambda: scene("liquid", 5e-3, nodes=41, scheme="energy-momentum")}
 
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--rev", required=True, help="the earlier commit")
+    ap.add_argument("--rev", help="the earlier commit")
+    ap.add_argument("--frames", action="store_true", help="body frames (now) against spatial frames (then), both now")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--cases", default="")
     args = ap.parse_args()
     from varint.tube_em import TubeEMStep
 
-    old = module_at(args.rev, "tube_em")
-    print(f"| case | now ms/step | Jac./step | it./step | at {args.rev} ms/step | Jac./step | it./step | then / now |")
+    if args.frames:
+        classes = (("now", TubeEMStep), ("then", lambda m, h: TubeEMStep(m, h, body=False)))
+        then = "spatial frames"
+    else:
+        classes = (("now", TubeEMStep), ("then", module_at(args.rev, "tube_em").TubeEMStep))
+        then = f"at {args.rev}"
+    print(f"| case | now ms/step | Jac./step | it./step | {then} ms/step | Jac./step | it./step | then / now |")
     print("|---|---|---|---|---|---|---|---|")
     for name, make in cases().items():
         if args.cases and not any(c in name for c in args.cases.split(",")):
             continue
         steppers = {}
-        for key, cls in (("now", TubeEMStep), ("then", old.TubeEMStep)):
+        for key, cls in classes:
             s = cls(make(), 5e-3)
             s.step()
             steppers[key] = s
