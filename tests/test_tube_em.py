@@ -197,6 +197,34 @@ def test_the_newton_jacobian_is_the_derivative_of_the_residual():
         assert np.allclose(J[:, col], fd, rtol=1e-6, atol=1e-6 * np.abs(J).max())
 
 
+@pytest.mark.parametrize("fluid", [GAS, LIQUID], ids=["gas", "liquid"])
+def test_the_sparse_jacobian_is_the_dense_one_and_a_wrong_pattern_is_caught(fluid, monkeypatch):
+    """The coloured complex-step Jacobian (pattern from the stencils) equals the dense complex step entry by entry, in
+    the spatial and the body frames, at an iterate whose labels cross elements; a pattern that drops entries is
+    caught by the random direction riding in the batch and the dense Jacobian used instead."""
+    st = TubeEMStep(_model(fluid=fluid, parcels=5), 1e-3)
+    rng = np.random.default_rng(7)
+    dsl = 0.3 * st.ds * rng.normal(size=st.M - 1)
+    dsl[0] = (np.floor(st.s[1] / st.ds) + 1.3) * st.ds - st.s[1]  # the first label into the next element
+    z = st.pack(*_random_increment(st, rng, amp=0.05)[:1], 0.01 * rng.normal(size=(st.N + 1, 3, 3)),
+                rng.normal(size=(st.N + 1, 6)), 1e-4 * rng.normal(size=st.N + 1), dsl,
+                1e-3 * rng.normal(size=st.X.shape), rng.normal(size=st.nu.shape), mu_liq=rng.normal(size=st.M))
+    e0 = np.floor(st.s[1:-1] / st.ds)
+    e1 = np.floor((st.s[1:-1] + st.unpack(z)["ds"]) / st.ds)
+    assert np.any(e0 != e1)  # labels cross elements
+    for body in (False, True):
+        Jd = st.jacobian(z, body=body)
+        Js = st.jacobian_sparse(z, body=body).toarray()
+        assert np.array_equal(Js, Jd)
+    assert st.stats_pattern["misses"] == 0 and st.stats_pattern["colours"] < st.nz
+    cl = st._cliques
+    monkeypatch.setattr(st, "_cliques", lambda z: cl(z)[:-1])
+    st._colouring.clear()
+    Js = st.jacobian_sparse(z).toarray()
+    assert st.stats_pattern["misses"] == 1
+    assert np.array_equal(Js, st.jacobian(z))
+
+
 # -- stepping -------------------------------------------------------------------------------------------------------
 
 

@@ -28,15 +28,23 @@ energy is conserved to the solver's residual and P, J to its floor (tested in te
 Scope in this version: closed fluid ends; free, pinned or clamped rod ends; rigid or dynamic wall (linear law or
 tube law); ideal gas, barotropic liquid or incompressible liquid; gravity, a dead tip force, p_ext; rod.constraint.
 Not covered (the scene check refuses them in one line naming time.scheme): open or periodic ends, a quasistatic
-wall, shock capturing and other non-conservative forces, a tip torque, the paper's measure.  The Jacobian is a dense
-complex step, so the step suits tubes of tens of elements (the rod alone has the compiled, sparse
-:class:`varint.rod_em.RodEMStep`).
+wall, shock capturing and other non-conservative forces, a tip torque, the paper's measure.
+
+Newton (as :class:`varint.rod_em.RodEMStep`): chord iterations on a kept SuperLU factorisation of the Jacobian in the
+level's body frames (T^T J T: r, D and the labels' X turned by the directors, so the matrix survives a rigid turn),
+refreshed when the contraction is slower than 1/2; the Jacobian by complex step with a colouring of its columns
+(the pattern by location from the stencils, :meth:`TubeEMStep._cliques`; ~110 batched residuals at 20 or 40
+elements with a liquid), each one checked against a random directional derivative in the same batch; a rigid
+correction of the solution zeroes the momentum balances.  The residual is numpy (not compiled): ~1-2 ms at 20
+elements, and the 15-20 chord iterations per step to the round-off floor are most of a step's cost
+(docs/performance.md, "The coupled tube's energy-momentum step").
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from .errors import SolverError
 from .rod_em import CHI, _PAIRS, _T, _hat, director_masses, discrete_gradient, potential, strains
@@ -77,30 +85,34 @@ def supports(model):
 # -- exact, cancellation-free divided differences ------------------------------------------------------------------
 
 
-def _power_dd(a, b, n):
-    """(b^n - a^n)/(b - a) = sum_i a^i b^(n-1-i), exact for a = b too."""
-    out = np.zeros(np.broadcast_shapes(np.shape(a), np.shape(b)), dtype=np.result_type(a, b, float))
-    for i in range(n):
-        out = out + a ** i * b ** (n - 1 - i)
-    return out
+def _pows_dd(a, b, n):
+    """(b^p - a^p)/(b - a) = sum_i a^i b^(p-1-i) for p = 1..n on a new last axis, exact for a = b too (by
+    dd_p = a dd_(p-1) + b^(p-1))."""
+    a, b = np.broadcast_arrays(a, b)
+    dd = [np.ones(a.shape, dtype=np.result_type(a, b, float))]
+    bp = b
+    for _ in range(1, n):
+        dd.append(a * dd[-1] + bp)
+        bp = bp * b
+    return np.stack(dd, -1)
 
 
-def _poly(c, t, first_power=0):
-    """sum_p c[..., p] t^(p + first_power) (c's last axis the powers)."""
-    out = 0.0
-    for p in range(c.shape[-1]):
-        out = out + c[..., p] * t ** (p + first_power)
-    return out
+def _pows(t, lo, hi):
+    """t^p for p = lo..hi on a new last axis."""
+    out = [np.ones_like(t) if lo == 0 else t ** lo]
+    for _ in range(lo, hi):
+        out.append(out[-1] * t)
+    return np.stack(out, -1)
 
 
-def _poly_dd(c, a, b, first_power=0):
-    """The divided difference of _poly(c, ., first_power) between a and b, without cancellation."""
-    out = 0.0
-    for p in range(c.shape[-1]):
-        n = p + first_power
-        if n:
-            out = out + c[..., p] * _power_dd(a, b, n)
-    return out
+def _cr(t):
+    """The four Catmull-Rom weights (nodes e-1..e+2) at local coordinates t (.., 4)."""
+    return np.einsum("...p,ip->...i", _pows(t, 0, 3), _CR)
+
+
+def _cr_dd(a, b):
+    """Their divided differences between a and b (.., 4), without cancellation."""
+    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), _CR[:, 1:])
 
 
 def _clip01(t):
@@ -117,12 +129,12 @@ def _moment_dd(t0, t1):
     same = dt == 0
     frac = np.where(same, np.where((np.real(t0) >= 0) & (np.real(t0) <= 1), 1.0, 0.0),
                     (c1 - c0) / np.where(same, 1.0, dt))
-    dd = _poly_dd(_MQ, c0[..., None], c1[..., None], first_power=1)
+    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), _MQ)
     return dd * frac[..., None]
 
 
 def _moments(t):
-    return _poly(_MQ, _clip01(t)[..., None], first_power=1)
+    return np.einsum("...p,qp->...q", _pows(_clip01(t), 1, 4), _MQ)
 
 
 def scalar_dd(f, df, x0, x1):
@@ -133,6 +145,33 @@ def scalar_dd(f, df, x0, x1):
     quad = sum(w * df(x0 + xg * dx) for xg, w in zip(_GL_X, _GL_W))
     direct = (f(x1) - f(x0)) / np.where(small, 1.0, dx)
     return np.where(small, quad, direct)
+
+
+_Q = np.add.outer(np.add.outer(np.arange(2), np.arange(2)), np.arange(2))  # q = i + j + l
+
+
+def _ends(x, pe):
+    """x at the two nodes of each pair's element (.., npairs, 2)."""
+    return np.stack([x[..., pe], x[..., pe + 1]], -1)
+
+
+def _triple(Rp, Gp):
+    """P_(ijl) = R_i R_j gamma_l (.., npairs, 2, 2, 2) from the pairs' end values."""
+    return Rp[..., :, None, None] * Rp[..., None, :, None] * Gp[..., None, None, :]
+
+
+def _scatter(x, idx, n):
+    """out[..., i] = sum of x[..., p] over p with idx[p] = i (the pairs summed into parcels, labels or nodes), by
+    bincount on the real and imaginary parts (no BLAS call: a threaded BLAS stalls on small products when the
+    machine is loaded)."""
+    b = x.shape[:-1]
+    B = int(np.prod(b, dtype=int))
+    flat = (np.arange(B)[:, None] * n + idx[None, :]).ravel()
+    x2 = x.reshape(B, -1)
+    out = np.bincount(flat, x2.real.ravel(), B * n)
+    if np.iscomplexobj(x):
+        out = out + 1j * np.bincount(flat, x2.imag.ravel(), B * n)
+    return out.reshape(b + (n,))
 
 
 def _avf2(x0, x1, y0, y1):
@@ -168,18 +207,15 @@ def label_weights(s, n_nodes, ds, elements=None):
     e = _element_of(s, ds, n_nodes - 1) if elements is None else elements
     t = s / ds - e
     rows = np.zeros(s.shape + (n_nodes + 2,), dtype=np.result_type(s, float))
-    idx = np.broadcast_to(e, s.shape)
-    for i in range(4):
-        val = _poly(_CR[i], t)
-        np.put_along_axis(rows, (idx + i)[..., None], np.take_along_axis(rows, (idx + i)[..., None], -1) + val[..., None], -1)
+    val = _cr(t)
+    np.put_along_axis(rows, np.broadcast_to(e, s.shape)[..., None] + np.arange(4), val, -1)
     return _fold(rows, n_nodes)
 
 
 def _scatter_basis(out, e, coef):
-    """out[..., e + i] += coef[i] for the four Catmull-Rom nodes e-1..e+2 (padded index e + i)."""
-    for i in range(4):
-        idx = np.broadcast_to(e + i, coef[i].shape)[..., None]
-        np.put_along_axis(out, idx, np.take_along_axis(out, idx, -1) + coef[i][..., None], -1)
+    """out[..., e + i] += coef[..., i] for the four Catmull-Rom nodes e-1..e+2 (padded index e + i)."""
+    idx = np.broadcast_to(e[..., None] + np.arange(4), coef.shape)
+    np.put_along_axis(out, idx, np.take_along_axis(out, idx, -1) + coef, -1)
 
 
 def label_weights_dd(s0, s1, n_nodes, ds):
@@ -201,19 +237,18 @@ def label_weights_dd(s0, s1, n_nodes, ds):
     a = s0 / ds - e0
     b = np.where(same, s1 / ds - e0, np.where(up, 1.0, 0.0))
     frac = np.where(same, 1.0 / ds, (b - a) / dsv)
-    _scatter_basis(out, e0, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+    _scatter_basis(out, e0, _cr_dd(a, b) * frac[..., None])
     if not np.all(same):
         # the piece on the last element, from the end the step enters by to s1
         a = np.where(up, 0.0, 1.0)
         b = s1 / ds - e1
         frac = np.where(same, 0.0, (b - a) / dsv)
-        _scatter_basis(out, e1, [_poly_dd(_CR[i], a, b) * frac for i in range(4)])
+        _scatter_basis(out, e1, _cr_dd(a, b) * frac[..., None])
         for k in zip(*np.nonzero(np.abs(e1 - e0) > 1)):  # whole elements crossed in one step (rare)
             sign = 1.0 if up[k] else -1.0
             for e in range(min(e0[k], e1[k]) + 1, max(e0[k], e1[k])):
                 lo, hi = (0.0, 1.0) if up[k] else (1.0, 0.0)
-                for i in range(4):
-                    out[k + (e + i,)] += _poly_dd(_CR[i], np.array(lo), np.array(hi)) * sign / dsv[k]
+                out[k + (slice(e, e + 4),)] += _cr_dd(np.array(lo), np.array(hi)) * sign / dsv[k]
     return _fold(out, n_nodes)
 
 
@@ -224,13 +259,15 @@ class TubeEMStep:
     """Energy-momentum stepping of the coupled tube (docs/theory.md §12b); its own state (r, D, v, V, R, R', s, X, X',
     multipliers)."""
 
-    def __init__(self, model, h, tol=1e-12, max_iter=40):
+    def __init__(self, model, h, tol=1e-12, max_iter=40, body=True):
         why = supports(model)
         if why:
             raise SolverError(why)
         rod, t = model.rod, model.tube
         self.model, self.rod, self.t = model, rod, t
         self.h, self.tol, self.max_iter = float(h), tol, max_iter
+        self.body = bool(body)
+        self.rate_refresh = 0.5  # chord: a new Jacobian when an update shrinks less than this
         self.N, self.M, self.ds = rod.N, t.M, rod.ds
         n1 = self.N + 1
         self.constrained = bool(rod.constrained)
@@ -285,6 +322,7 @@ class TubeEMStep:
         self.n = 0
         self._lu = None
         self._prev = None
+        self._lvl = None
         self.last = dict(iterations=0, jacobians=0, fallback=0)
         self.stats = dict(iterations=0, jacobians=0, residuals=0)
         if self.incompressible:
@@ -328,6 +366,23 @@ class TubeEMStep:
         fixed[self.sl["dD"]] = np.repeat(self.fix_D, 9)
         fixed[self.sl["lam"]] = np.repeat(self.fix_D, 6)
         self.fixed = fixed
+        # locations of the unknowns for the sparse Jacobian (:meth:`jacobian_sparse`), one per kind and place: node n's
+        # dr, dD, lam, dR; element e's mu_rod; interior label k's ds, dX, nu; parcel k's mu_liq
+        N = self.N
+        first, o2 = {}, 0
+        for name, count in (("dr", n1), ("dD", n1), ("lam", n1), ("dR", n1), ("mu_rod", N), ("ds", M - 1),
+                            ("dX", M - 1), ("nu", M - 1), ("mu_liq", M)):
+            first[name] = o2
+            o2 += count
+        self.loc_first, self.n_loc = first, o2
+        loc = np.empty(o, int)
+        for name, per in (("dr", 3), ("dD", 9), ("lam", 6), ("mu_rod", 3), ("dR", 1), ("ds", 1), ("dX", 3), ("nu", 3),
+                          ("mu_liq", 1)):
+            sl = self.sl[name]
+            loc[sl] = first[name] + np.arange(sl.stop - sl.start) // per
+        self.loc_of = loc
+        self._colouring = {}
+        self.stats_pattern = dict(checks=0, misses=0, colours=0)
 
     def unpack(self, z):
         """The blocks of z (leading batch axes kept)."""
@@ -366,9 +421,10 @@ class TubeEMStep:
         """(parcel, element) pairs that parcels [s_lo_k, s_hi_{k+1}] may cover (real bounds)."""
         e_lo = _element_of(s_lo[:-1], self.ds, self.N)
         e_hi = _element_of(s_hi[1:], self.ds, self.N)
-        k = np.repeat(np.arange(self.M), e_hi - e_lo + 1)
-        e = np.concatenate([np.arange(a, b + 1) for a, b in zip(e_lo, e_hi)])
-        return k, e
+        count = e_hi - e_lo + 1
+        k = np.repeat(np.arange(self.M), count)
+        first = np.cumsum(count) - count  # each parcel's first pair
+        return k, e_lo[k] + np.arange(len(k)) - first[k]
 
     def volumes(self, s, R, r, D):
         """Parcel volumes V_k at one level (theory §10.3; any leading batch axes on R, r, D, s)."""
@@ -377,27 +433,12 @@ class TubeEMStep:
         pk, pe = self._pairs(s_re.min(0), s_re.max(0))
         return self._volumes_on(s, R, gam, pk, pe)
 
-    def _terms(self, R, gam, pe):
-        """P_(ijl) = R_(e+i) R_(e+j) gamma_(e+l) on each pair's element, with q = i + j + l."""
-        out = []
-        for i in (0, 1):
-            for j in (0, 1):
-                for l in (0, 1):
-                    out.append(((i, j, l), R[..., pe + i] * R[..., pe + j] * gam[..., pe + l]))
-        return out
-
     def _volumes_on(self, s, R, gam, pk, pe):
         t_lo = s[..., pk] / self.ds - pe
         t_hi = s[..., pk + 1] / self.ds - pe
         S = _moments(t_hi) - _moments(t_lo)  # (.., npairs, 4)
-        Vp = 0.0
-        for (i, j, l), P in self._terms(R, gam, pe):
-            Vp = Vp + P * S[..., i + j + l]
-        Vp = self.ds * np.pi * Vp
-        out = np.zeros(Vp.shape[:-1] + (self.M,), dtype=Vp.dtype)
-        for kk in range(self.M):  # scatter the pairs into parcels (few pairs per parcel)
-            out[..., kk] = Vp[..., pk == kk].sum(-1)
-        return out
+        Vp = self.ds * np.pi * np.sum(_triple(_ends(R, pe), _ends(gam, pe)) * S[..., _Q], (-3, -2, -1))
+        return _scatter(Vp, pk, self.M)  # the pairs summed into their parcels
 
     # -- energies --------------------------------------------------------------------------------------------------
 
@@ -458,16 +499,45 @@ class TubeEMStep:
                              np.broadcast_to(self.s[-1], u["ds"].shape[:-1] + (1,))], -1)
         return u, self.r + u["dr"], self.D + u["dD"], self.R + u["dR"], s1, self.X + u["dX"]
 
-    def fluid_discrete_gradient(self, z):
+    def _level0(self):
+        """The level's own quantities, the same for every residual of a step (stretches, label weights, frame
+        nodes and their directors), kept while the level's arrays are the same objects (a step and a restore put
+        new ones in place; nothing changes them in place)."""
+        key = (self.r, self.D, self.s, self.R)
+        c = self._lvl
+        if c is None or any(a is not b for a, b in zip(c["key"], key)):
+            G0, a0, gam0 = self.stretches(self.r, self.D)
+            fr = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+            c = dict(key=key, G0=G0, a0=a0, gam0=gam0, fr=fr, De0=self.D[fr],
+                     W0=label_weights(self.s[1:-1], self.N + 1, self.ds), pairs={})
+            self._lvl = c
+        return c
+
+    def _pairs0(self, lvl, pk, pe):
+        """Per (parcel, element) pair at the level (cached with :meth:`_level0`): V0, S0, the label coordinates,
+        the radii and nodal stretches at the element's ends."""
+        key = (pk.tobytes(), pe.tobytes())
+        out = lvl["pairs"].get(key)
+        if out is None:
+            ds = self.ds
+            tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
+            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe), S0=_moments(th0) - _moments(tl0),
+                       tl0=tl0, th0=th0, R0p=_ends(self.R, pe), G0p=_ends(lvl["gam0"], pe))
+            lvl["pairs"][key] = out
+        return out
+
+    def fluid_discrete_gradient(self, z, gam1=None):
         """Parcel volumes at both levels and the discrete gradient of sum_k c_k V_k in (s, R, |Gamma_e|), with
         c_k = dpsi_k (the divided difference of psi) + p_ext - mu_k.  Returns dict(V0, V1, c, gs (.., M-1), gR (.., N+1),
-        gG (.., N): the coefficient of Delta|Gamma_e|)."""
+        gG (.., N): the coefficient of Delta|Gamma_e|).  ``gam1``: the nodal stretches at z's level if known."""
         u, r1, D1, R1, s1, _ = self._levels(z)
-        _, _, gam0 = self.stretches(self.r, self.D)
-        _, _, gam1 = self.stretches(r1, D1)
+        lvl = self._level0()
+        if gam1 is None:
+            _, _, gam1 = self.stretches(r1, D1)
         s1_re = np.real(s1).reshape(-1, self.M + 1)[0]
         pk, pe = self._pairs(np.minimum(self.s, s1_re), np.maximum(self.s, s1_re))
-        V0 = self._volumes_on(self.s, self.R, gam0, pk, pe)
+        p0 = self._pairs0(lvl, pk, pe)
+        V0 = p0["V0"]
         V1 = self._volumes_on(s1, R1, gam1, pk, pe)
         if self.eos is not None:
             psi = lambda V: self.eos.psi(V, self.mk, self.Sk)  # noqa: E731
@@ -481,45 +551,32 @@ class TubeEMStep:
         cp = c[..., pk]  # per pair
         ds = self.ds
         # S parts (label coordinates) and their exact divided differences, per pair
-        tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
+        tl0, th0 = p0["tl0"], p0["th0"]
         tl1, th1 = s1[..., pk] / ds - pe, s1[..., pk + 1] / ds - pe
-        S0 = _moments(th0) - _moments(tl0)
+        S0 = p0["S0"]
         S1 = _moments(th1) - _moments(tl1)
         Sb = 0.5 * (S0 + S1)
         ddh, ddl = _moment_dd(th0, th1), _moment_dd(tl0, tl1)
-        terms0 = self._terms(self.R, gam0, pe)
-        terms1 = self._terms(R1, gam1, pe)
-        shp = cp.shape
-        g_hi = np.zeros(shp, dtype=cp.dtype)
-        g_lo = np.zeros(shp, dtype=cp.dtype)
-        gRp = np.zeros(shp + (2,), dtype=cp.dtype)
-        gGp = np.zeros(shp + (2,), dtype=cp.dtype)
-        Rl = [(self.R[..., pe + i], R1[..., pe + i]) for i in (0, 1)]
-        Gl = [(gam0[..., pe + i], gam1[..., pe + i]) for i in (0, 1)]
-        for ((i, j, l), P0), (_, P1) in zip(terms0, terms1):
-            q = i + j + l
-            Pb = 0.5 * (P0 + P1)
-            g_hi = g_hi + Pb * ddh[..., q]
-            g_lo = g_lo - Pb * ddl[..., q]
-            # Delta P = Delta R_i avf(R_j, g_l) + Delta R_j avf(R_i, g_l) + Delta g_l avf(R_i, R_j)
-            gRp[..., i] += Sb[..., q] * _avf2(*Rl[j], *Gl[l])
-            gRp[..., j] += Sb[..., q] * _avf2(*Rl[i], *Gl[l])
-            gGp[..., l] += Sb[..., q] * _avf2(*Rl[i], *Rl[j])
+        # P_(ijl) = R_i R_j gamma_l on the pair's element (i, j, l in {0, 1}: its two nodes), q = i + j + l
+        R0p, R1p = p0["R0p"], _ends(R1, pe)
+        G0p, G1p = p0["G0p"], _ends(gam1, pe)
+        Pb = 0.5 * (_triple(R0p, G0p) + _triple(R1p, G1p))
+        g_hi = np.sum(Pb * ddh[..., _Q], (-3, -2, -1))
+        g_lo = -np.sum(Pb * ddl[..., _Q], (-3, -2, -1))
+        # Delta P = Delta R_i avf(R_j, g_l) + Delta R_j avf(R_i, g_l) + Delta g_l avf(R_i, R_j); S_q symmetric in i, j
+        SbQ = Sb[..., _Q]
+        gRp = 2.0 * np.sum(SbQ * _avf2(R0p[..., None, :, None], R1p[..., None, :, None], G0p[..., None, None, :],
+                                       G1p[..., None, None, :]), (-2, -1))
+        gGp = np.sum(SbQ * _avf2(R0p[..., :, None, None], R1p[..., :, None, None], R0p[..., None, :, None],
+                                 R1p[..., None, :, None]), (-3, -2))
         k = np.pi * cp  # ds pi c_k; the label rows carry 1/ds from t = s/ds - e
         g_hi, g_lo = k * g_hi, k * g_lo
         gRp, gGp = ds * k[..., None] * gRp, ds * k[..., None] * gGp
         n1 = self.N + 1
-        b = shp[:-1]
-        gs = np.zeros(b + (self.M + 1,), dtype=cp.dtype)
-        gR = np.zeros(b + (n1,), dtype=cp.dtype)
-        gg = np.zeros(b + (n1,), dtype=cp.dtype)
-        for p_, (kk, ee) in enumerate(zip(pk, pe)):
-            gs[..., kk + 1] += g_hi[..., p_]
-            gs[..., kk] += g_lo[..., p_]
-            gR[..., ee] += gRp[..., p_, 0]
-            gR[..., ee + 1] += gRp[..., p_, 1]
-            gg[..., ee] += gGp[..., p_, 0]
-            gg[..., ee + 1] += gGp[..., p_, 1]
+        # the pairs summed into labels k, k + 1 and nodes e, e + 1
+        gs = _scatter(np.concatenate([g_lo, g_hi], -1), np.concatenate([pk, pk + 1]), self.M + 1)
+        gR = _scatter(np.concatenate([gRp[..., 0], gRp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
+        gg = _scatter(np.concatenate([gGp[..., 0], gGp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
         # nodal stretch -> element stretches: gamma_0 = |G_0|, gamma_N = |G_(N-1)|, else the mean of the two
         gG = 0.5 * (gg[..., :-1] + gg[..., 1:])
         gG[..., 0] += 0.5 * gg[..., 0]
@@ -530,11 +587,12 @@ class TubeEMStep:
         """c_k(q_1) and the discrete derivative's forces on (r, D, s, X) from nu (theory §12b)."""
         n1 = self.N + 1
         sk0, sk1 = self.s[1:-1], s1[..., 1:-1]
-        e = self._frame_nodes
-        W0 = label_weights(sk0, n1, self.ds)
+        lvl = self._level0()
+        e = lvl["fr"]
+        W0 = lvl["W0"]
         W1 = label_weights(sk1, n1, self.ds)
-        De0, De1 = self.D[e], D1[..., e, :, :]
-        c1 = np.einsum("...kji,...kj->...ki", De1, X1 - W1 @ r1)
+        De0, De1 = lvl["De0"], D1[..., e, :, :]
+        c1 = np.einsum("...kji,...kj->...ki", De1, X1 - np.einsum("...kn,...nc->...kc", W1, r1))
         nu = u["nu"]
         Db = 0.5 * (De0 + De1)
         Wb = 0.5 * (W0 + W1)
@@ -543,15 +601,13 @@ class TubeEMStep:
         Dnu = np.einsum("...kij,...kj->...ki", Db, nu)
         FX = Dnu
         Fr = -np.einsum("...ki,...kc->...ic", Wb, Dnu)
-        xk = Xb - Wb @ rb
+        xk = Xb - np.einsum("...kn,...nc->...kc", Wb, rb)
         FD = np.zeros(r1.shape[:-1] + (3, 3), dtype=np.result_type(r1, nu, D1))
         self._add_frames(FD, e, xk[..., :, None] * nu[..., None, :])
-        # y_i = D_e^T r_i at both levels; F_s = -sum_i DD_i ybar_i . nu
-        y0 = np.einsum("kji,nj->kni", De0, self.r)
-        y1 = np.einsum("...kji,...nj->...kni", De1, r1)
-        yb = 0.5 * (y0 + y1)
+        # y_i = D_e^T r_i at both levels; F_s = -sum_i DD_i ybar_i . nu = -(1/2) sum_l (DD r_l) . (D_e^l nu), l = 0, 1
         DD = label_weights_dd(sk0, sk1, n1, self.ds)
-        Fs = -np.einsum("...kn,...kni,...ki->...k", DD, yb, nu)
+        Fs = -0.5 * (np.einsum("...kj,kji,...ki->...k", np.einsum("...kn,nj->...kj", DD, self.r), De0, nu)
+                     + np.einsum("...kj,...kji,...ki->...k", np.einsum("...kn,...nj->...kj", DD, r1), De1, nu))
         return c1, Fr, FD, Fs, FX
 
     @staticmethod
@@ -563,11 +619,12 @@ class TubeEMStep:
         """R(z) (.., nz) from the current level; z the increments and multipliers (layout :meth:`unpack`)."""
         h = self.h
         u, r1, D1, R1, s1, X1 = self._levels(z)
-        self._frame_nodes = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
-        fl = self.fluid_discrete_gradient(z)
+        lvl = self._level0()
+        self._frame_nodes = lvl["fr"]
+        G1, a1, gam1 = self.stretches(r1, D1)
+        fl = self.fluid_discrete_gradient(z, gam1)
         # the fluid reaches the rod through |Gamma_e|: a stress gG_e/ds along (Gamma^0 + Gamma^1)/(|Gamma^0| + |Gamma^1|)
-        G0, a0, _ = self.stretches(self.r, self.D)
-        G1, a1, _ = self.stretches(r1, D1)
+        G0, a0 = lvl["G0"], lvl["a0"]
         ghat = (G0 + G1) / (a0 + a1)[..., None]
         stress = (fl["gG"] / self.ds)[..., None] * ghat
         if u["mu_rod"] is not None:
@@ -601,36 +658,184 @@ class TubeEMStep:
 
     # -- Newton ------------------------------------------------------------------------------------------------------
 
-    def jacobian(self, z, chunk=64):
-        """Dense Jacobian by complex step (exact to round-off), in batches of ``chunk`` columns."""
+    def jacobian(self, z, chunk=64, body=False):
+        """Dense Jacobian by complex step (exact to round-off), in batches of ``chunk`` columns (the reference for
+        :meth:`jacobian_sparse`, and its fallback); with ``body`` T^T J T."""
         n = self.nz
         J = np.empty((n, n))
         eps = 1e-30
         for a in range(0, n, chunk):
             cols = np.arange(a, min(n, a + chunk))
-            zc = np.repeat(z[None, :].astype(complex), len(cols), 0)
-            zc[np.arange(len(cols)), cols] += 1j * eps
-            J[:, cols] = (self.residual(zc).imag / eps).T
+            E = np.zeros((len(cols), n))
+            E[np.arange(len(cols)), cols] = 1.0
+            if body:
+                E = self._rotate(E)
+            Rc = self.residual(z[None, :] + 1j * eps * E).imag / eps
+            J[:, cols] = (self._rotate(Rc, transpose=True) if body else Rc).T
             self.stats["residuals"] += len(cols)
         return J
 
+    # -- the sparse Jacobian ------------------------------------------------------------------------------------------
+
+    def _cliques(self, z):
+        """The Jacobian's pattern by location (:meth:`_layout`) at the real iterate z, as blocks (rows, cols, hub):
+        the rows of every location in ``rows`` may read the columns of every location in ``cols`` (hub False), or
+        (hub True) the locations in ``cols`` read all of ``rows`` and all of ``rows`` read ``cols`` (a star):
+
+        * each node's D and lam (the orthonormality rows, the multipliers' forces); each element's nodes' r, D and
+          mu_rod (the discrete gradient, the strain constraint, the fluid's stress direction); the wall's
+          neighbouring radii;
+        * each label's constraint, a star: its s, X, nu and its frame node's D read, and are read by, the r of the
+          Catmull-Rom nodes e-1..e+2 of every element between its two levels (the nodes' forces -W^T D_e nu read
+          no other node, and no r reads another through the label);
+        * each (parcel, element) pair of the volumes, a star: the s of labels k, k+1, the radii of nodes e, e+1 and
+          the parcel's multiplier read, and are read by, the r and D of nodes e-1..e+2 (the nodal stretch reads the
+          elements on both sides; the stretch's coefficient reads no stretch); for a gas or barotropic liquid all
+          pairs of a parcel in one full block instead (psi's divided difference reads the whole parcel's volume).
+
+        The elements and pairs are those of the real parts, as the residual finds them (the complex step does not
+        move them)."""
+        N, M, ds, f = self.N, self.M, self.ds, self.loc_first
+
+        def nodes(kind, a, b):
+            return tuple(range(f[kind] + max(a, 0), f[kind] + min(b, N) + 1))
+
+        s0 = self.s
+        s1 = s0.copy()
+        s1[1:-1] += np.real(z[self.sl["ds"]])
+        full = [(f["dD"] + n, f["lam"] + n) for n in range(N + 1)] + [(f["dR"] + n,) for n in range(N + 1)]
+        full += [(f["dr"] + e, f["dr"] + e + 1, f["dD"] + e, f["dD"] + e + 1, f["mu_rod"] + e) for e in range(N)]
+        full += [(f["dR"] + e, f["dR"] + e + 1) for e in range(N)]
+        out = [(c, c, False) for c in full]
+        fr = np.clip(np.rint(s0[1:-1] / ds).astype(int), 0, N)
+        e0, e1 = _element_of(s0[1:-1], ds, N), _element_of(s1[1:-1], ds, N)
+        for kk in range(M - 1):
+            lo, hi = min(e0[kk], e1[kk]), max(e0[kk], e1[kk])
+            hub = (f["ds"] + kk, f["dX"] + kk, f["nu"] + kk, f["dD"] + fr[kk])
+            out.append((nodes("dr", lo - 1, hi + 2), hub, True))
+        pk, pe = self._pairs(np.minimum(s0, s1), np.maximum(s0, s1))
+        per_parcel = [set() for _ in range(M)]
+        for k, e in zip(pk, pe):
+            hub = (nodes("dR", e, e + 1) + (f["mu_liq"] + k,) + ((f["ds"] + k - 1,) if k >= 1 else ())
+                   + ((f["ds"] + k,) if k <= M - 2 else ()))
+            if self.eos is not None:
+                per_parcel[k].update(nodes("dr", e - 1, e + 2) + nodes("dD", e - 1, e + 2) + hub)
+            else:
+                out.append((nodes("dr", e - 1, e + 2) + nodes("dD", e - 1, e + 2), hub, True))
+        if self.eos is not None:
+            out += [(tuple(sorted(c)), tuple(sorted(c)), False) for c in per_parcel]
+        return tuple(out)
+
+    def _plan(self, z):
+        """(colour of each column, number of colours, rows, cols of the pattern) for the pattern at z (cached): a
+        greedy colouring of the locations (largest first), each location's unknowns on distinct colours, two
+        locations on disjoint colours when some row location reads both."""
+        key = self._cliques(z)
+        plan = self._colouring.get(key)
+        if plan is not None:
+            return plan
+        P = np.zeros((self.n_loc, self.n_loc), bool)
+        for rows, cols, hub in key:
+            rows, cols = list(rows), list(cols)
+            if hub:
+                allr = rows + cols
+                P[np.ix_(allr, cols)] = True
+                P[np.ix_(cols, allr)] = True
+            else:
+                P[np.ix_(rows, cols)] = True
+        Pi = P.astype(np.int32)
+        conflict = (Pi.T @ Pi) > 0
+        size = np.bincount(self.loc_of, minlength=self.n_loc)
+        members = [np.nonzero(self.loc_of == a)[0] for a in range(self.n_loc)]
+        colour = np.full(self.nz, -1)
+        loc_col = [None] * self.n_loc
+        for a in np.argsort(-size, kind="stable"):
+            if size[a] == 0:
+                continue
+            busy = np.zeros(self.nz + 1, bool)
+            for b in np.nonzero(conflict[a])[0]:
+                if loc_col[b] is not None:
+                    busy[loc_col[b]] = True
+            loc_col[a] = np.nonzero(~busy)[0][: size[a]]
+            colour[members[a]] = loc_col[a]
+        rows, cols = np.nonzero(P[self.loc_of][:, self.loc_of])
+        plan = (colour, int(colour.max()) + 1, rows, cols)
+        if len(self._colouring) > 256:
+            self._colouring.clear()
+        self._colouring[key] = plan
+        return plan
+
+    def _rotate(self, x, transpose=False):
+        """T x (or T^T x) over the last axis: the rod's dr_n, dD_n and the labels' dX_k turned by the level's
+        directors (D_n, D_n (x) I, D_e of the label's frame node); the rest (multipliers, R, s, nu) as they are."""
+        D = _T(self.D) if transpose else self.D
+        n1, b = self.N + 1, x.shape[:-1]
+        out = x.copy()
+        sl = self.sl["dr"]
+        out[..., sl] = np.einsum("nab,...nb->...na", D, x[..., sl].reshape(b + (n1, 3))).reshape(b + (-1,))
+        sl = self.sl["dD"]
+        out[..., sl] = (D @ x[..., sl].reshape(b + (n1, 3, 3))).reshape(b + (-1,))
+        if self.M > 1:
+            fr = np.clip(np.rint(self.s[1:-1] / self.ds).astype(int), 0, self.N)
+            sl = self.sl["dX"]
+            xk = x[..., sl].reshape(b + (self.M - 1, 3))
+            out[..., sl] = np.einsum("kab,...kb->...ka", D[fr], xk).reshape(b + (-1,))
+        return out
+
+    def jacobian_sparse(self, z, body=False):
+        """Sparse Jacobian by complex step with a colouring of the columns (:meth:`_plan`): one batched residual per
+        colour.  With ``body``, T^T J T (:meth:`_rotate`: Newton's matrix in the level's body frames, which does not
+        turn with a rigidly turning tube, so a factorisation survives across the steps of a spinning tube as
+        varint.rod_em.RodEMStep's does); T is block-diagonal by location and the pattern is by location, so the
+        colouring separates T's columns too.  A random direction rides in the same batch: its directional
+        derivative must match J w row by row, else the pattern missed an entry, the miss is counted and the dense
+        complex-step Jacobian used instead (never a silently dropped entry)."""
+        colour, nc, rows, cols = self._plan(z)
+        n, eps = self.nz, 1e-30
+        w = np.random.default_rng(self.n + 12345).standard_normal(n)
+        E = np.zeros((nc + 1, n))
+        E[colour, np.arange(n)] = 1.0
+        E[-1] = w
+        if body:
+            E = self._rotate(E)
+        Rc = self.residual(z[None, :] + 1j * eps * E).imag / eps
+        self.stats["residuals"] += nc + 1
+        if body:
+            Rc = self._rotate(Rc, transpose=True)
+        J = sp.csr_matrix((Rc[colour[cols], rows], (rows, cols)), shape=(n, n))
+        ref = Rc[-1]
+        err = np.abs(J @ w - ref)
+        scale = abs(J) @ np.abs(w)
+        self.stats_pattern["checks"] += 1
+        self.stats_pattern["colours"] = nc
+        if np.all(err <= 1e-8 * scale + 1e-13 * scale.max()):
+            return J
+        self.stats_pattern["misses"] += 1
+        return sp.csr_matrix(self.jacobian(z, body=body))
+
     def _factor(self, z):
-        J = self.jacobian(z)
-        rs = np.max(np.abs(J), 1)
+        J = self.jacobian_sparse(z, body=self.body)
+        rs = abs(J).max(axis=1).toarray().ravel()
         rs[rs == 0] = 1.0
-        Jr = J / rs[:, None]
-        cs = np.max(np.abs(Jr), 0)
+        Jr = sp.diags(1.0 / rs) @ J
+        cs = abs(Jr).max(axis=0).toarray().ravel()
         cs[cs == 0] = 1.0
+        Jr = (Jr @ sp.diags(1.0 / cs)).tocsc()
+        if not np.all(np.isfinite(Jr.data)):
+            raise SolverError(f"step {self.n + 1}: non-finite Newton matrix")
         try:
-            lu = sla.lu_factor(Jr / cs[None, :], check_finite=True)
-        except (ValueError, sla.LinAlgError) as exc:
+            lu = spla.splu(Jr)
+        except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
             raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
         self.stats["jacobians"] += 1
         return lu, rs, cs
 
     def _update(self, R):
         lu, rs, cs = self._lu
-        return sla.lu_solve(lu, -R / rs) / cs
+        if self.body:
+            R = self._rotate(R, transpose=True)
+        du = lu.solve(-R / rs) / cs
+        return self._rotate(du) if self.body else du
 
     def _solve(self, z, chord):
         sc, qm = self.scale, self.qmask
@@ -658,7 +863,7 @@ class TubeEMStep:
             z = z + dz
             if size < 1e-3 * self.tol:
                 return z, it
-            if chord and it > 1 and not fresh and last >= self.tol and (size > 0.5 * last or stale >= 20):
+            if chord and it > 1 and not fresh and last >= self.tol and (size > self.rate_refresh * last or stale >= 20):
                 self._lu = None
             fresh = False
             last = size
@@ -678,6 +883,50 @@ class TubeEMStep:
             return self._predict_rigid()
         dr, Dp, dR, ds, dX = self._prev
         return self.pack(dr, self.D @ (_T(Dp) @ self.D) - self.D, self.lam, dR, ds, dX, self.nu)
+
+    def _momentum_residuals(self, z):
+        """The step's linear and angular momentum balances from their closed forms (the internal and constraint
+        forces' sums vanish identically, theory §12a): the inertial and load terms of the rod's and the labels' rows
+        only, so they carry the round-off of the momenta, not that of the stiff forces."""
+        h = self.h
+        u = self.unpack(z)
+        rb, Db, Xb = self.r + 0.5 * u["dr"], self.D + 0.5 * u["dD"], self.X + 0.5 * u["dX"]
+        fr = (2.0 / h) * self.m[:, None] * (u["dr"] - h * self.v) - h * self.fext
+        fD = (2.0 / h) * self.E[:, None, :] * (u["dD"] - h * self.V)
+        fX = (2.0 / h) * self.mbar[:, None] * (u["dX"] - h * self.Xdot) - h * self.mbar[:, None] * self.g
+        P = fr.sum(0) + fX.sum(0)
+        J = (np.cross(rb, fr).sum(0) + np.cross(np.swapaxes(Db, 1, 2), np.swapaxes(fD, 1, 2)).sum((0, 1))
+             + np.cross(Xb, fX).sum(0))
+        return P, J, rb, Db, Xb
+
+    def _polish_rigid(self, z):
+        """One correction of the solution in the six rigid directions (dr += a + w x rbar, dd_i += w x dbar_i,
+        dX += a + w x Xbar) that zeroes the momentum balances of :meth:`_momentum_residuals`, as
+        varint.rod_em.RodEMStep._polish_rigid: Newton's last update leaves the full residual at its floor, and in the
+        body frames the chord matrix is not the exact one in the rigid directions, so the momenta would keep that
+        floor (~1e-14 |J|) instead of the momenta's round-off.  The correction is of the floor's size."""
+        P, J, rb, Db, Xb = self._momentum_residuals(z)
+        m, mb = self.m, self.mbar
+        eye = np.eye(3)
+        Mt = m.sum() + mb.sum()
+        S = (m[:, None] * rb).sum(0) + (mb[:, None] * Xb).sum(0)
+        Il = np.einsum("n,nk,nl->kl", m, rb, rb) + np.einsum("n,nk,nl->kl", mb, Xb, Xb)
+        Il = eye * np.trace(Il) - Il
+        d = np.swapaxes(Db, 1, 2)
+        Id = np.einsum("ni,nik,nil->kl", self.E, d, d)
+        Il += eye * np.trace(Id) - Id
+        A = np.zeros((6, 6))
+        A[:3, :3] = Mt * eye
+        A[:3, 3:] = -_hat(S)
+        A[3:, :3] = _hat(S)
+        A[3:, 3:] = Il
+        aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
+        a, w = aw[:3], aw[3:]
+        z = z.copy()
+        z[self.sl["dr"]] += (a + np.cross(w, rb)).ravel()
+        z[self.sl["dD"]] += np.swapaxes(np.cross(w, d), 1, 2).reshape(-1)
+        z[self.sl["dX"]] += (a + np.cross(w, Xb)).ravel()
+        return z
 
     def body_angular_velocity(self):
         A = _T(self.D) @ self.V
@@ -703,6 +952,8 @@ class TubeEMStep:
                 self._lu = None
                 raise exc
         z[self.fixed] = 0.0
+        if self.free:
+            z = self._polish_rigid(z)
         u = self.unpack(z)
         self.v = 2.0 * u["dr"] / h - self.v
         self.V = 2.0 * u["dD"] / h - self.V
