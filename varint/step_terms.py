@@ -478,6 +478,41 @@ class CoupledFluid:
         return (fluid_potential_static(self.fp0, s0, pt.r_n[:k], pt.Lam_n[:k], R0, mu=mu, hessian=hessian),
                 fluid_potential_static(self.fp0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu, hessian=hessian))
 
+    def _kinetic_increments(self, pt, s0, s1):
+        """The fluid kinetic term's level gradients (rod (n, 6), labels) at levels n and n+1, as
+        ``fluid_kinetic_chart``'s (grad = mbar/h D . dD/d(level), D = X_k^{n+1} - X_k^n), with D formed from the rod's
+        increments instead of from absolute centreline points: per label, with positions relative to its element's first
+        node c at level n, D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)].  The kernel's D is
+        rounded to eps |X| (over h: a velocity quantum that Newton and the rigid polish cannot go below, 1e-14 of the
+        momentum per label and step for a liquid at h = 1 ms); this one to eps ds, the increments exactly (docs/theory.md
+        §10.6, "Momenta to round-off").  A closed tube (not open ends)."""
+        from .coupled_geometry import centreline_weights
+        from .coupled_terms import _period_vector
+
+        k, fp, ds = self.n_nodes, self.fp, self.t.ds
+        r0, dr = pt.r_n[:k], pt.dr[:k]
+        n0, N0, dN0, _ = centreline_weights(s0, k, ds, fp.periodic)
+        n1, N1, dN1, _ = centreline_weights(s1, k, ds, fp.periodic)
+        if fp.periodic:  # the period added to the nodes past the end (centreline_and_weights)
+            d = _period_vector(k, ds, fp.period)
+            w0 = np.floor_divide(np.floor(s0 / ds).astype(np.int64)[:, None] + np.arange(-1, 3), k)[:, :, None] * d
+            w1 = np.floor_divide(np.floor(s1 / ds).astype(np.int64)[:, None] + np.arange(-1, 3), k)[:, :, None] * d
+        else:
+            w0 = w1 = 0.0
+        p0 = r0[n0] + w0
+        c = p0[:, 1:2, :]
+        # the increments' part apart from the labels' displacement along the level-n centreline (which does not read
+        # dr): D then moves with dr to eps |D|, and a label that does not slide (s^{n+1} = s^n) has the latter exactly 0
+        D = np.einsum("ki,kid->kd", N1, dr[n1]) + (np.einsum("ki,kid->kd", N1, (r0[n1] + w1) - c)
+                                                    - np.einsum("ki,kid->kd", N0, p0 - c))
+        dX0 = np.einsum("ki,kid->kd", dN0, p0)
+        dX1 = np.einsum("ki,kid->kd", dN1, (r0 + dr)[n1] + w1)
+        cm = fp.mbar / pt.h
+        rod0, rod1 = np.zeros((k, 6)), np.zeros((k, 6))
+        np.add.at(rod0[:, :3], n0.ravel(), (-(cm[:, None] * N0)[:, :, None] * D[:, None, :]).reshape(-1, 3))
+        np.add.at(rod1[:, :3], n1.ravel(), ((cm[:, None] * N1)[:, :, None] * D[:, None, :]).reshape(-1, 3))
+        return (rod0, -cm * np.sum(D * dX0, axis=1)), (rod1, cm * np.sum(D * dX1, axis=1))
+
     def value(self, pt):
         pot, kin = self._parts(pt)
         if pot is None:
@@ -509,14 +544,18 @@ class CoupledFluid:
             d.tube_lam += np.nan
             return
         Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
+        k_rod, k_s = Dk.rod, Dk.s
+        if self.ext is None and pt.dr is not None:  # the kinetic rows from the increments (_kinetic_increments)
+            s0, _, s1, _, _, _ = self.levels(pt)
+            k_rod, k_s = self._kinetic_increments(pt, s0, s1)[level]
         gc = np.zeros(t.nconfig)
         i = t.index
-        gc[:i["R"]] = Dp.s + Dk.s
+        gc[:i["R"]] = Dp.s + k_s
         if self.ext is not None:
             d.rod[:self.n_nodes] += self.ext.fold_gradient(Dp.rod + Dk.rod)
             gc[i["R"]:i["R"] + t.nR] = self.R_weight * self.ext.fold_radii(Dp.R)
         else:
-            d.rod[:self.n_nodes] += Dp.rod + Dk.rod
+            d.rod[:self.n_nodes] += Dp.rod + k_rod
             gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
         if level == 0 and t.incompressible:
             gc[i["mu"]:] = pot.Dmu
@@ -547,9 +586,11 @@ class CoupledFluid:
         s0, _, s1, _, _, _ = self.levels(pt)
         k, fp = self.n_nodes, self.fp
         r1 = pt.r_n + pt.dr if pt.dr is not None else pt.r_1
-        kin = fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic,
-                                  fp.period)
-        d.rod[:k] += kin.D1.rod
+        if pt.dr is not None:
+            d.rod[:k] += self._kinetic_increments(pt, s0, s1)[0][0]
+        else:
+            d.rod[:k] += fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds,
+                                             fp.periodic, fp.period).D1.rod
         X0 = centreline_and_weights(s0, pt.r_n[:k], self.t.ds, fp.periodic, fp.period)[3]
         X1 = centreline_and_weights(s1, r1[:k], self.t.ds, fp.periodic, fp.period)[3]
         if np.any(fp.g != 0.0):
