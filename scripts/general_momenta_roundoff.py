@@ -1,11 +1,12 @@
 """The momenta of the general Step path over long runs (docs/theory.md §9a, §10.6, "Momenta to round-off").
 
-Run:  python scripts/general_momenta_roundoff.py [--steps 2000] [--case rod2d rod3d gas gas-g] [--no-polish]
+Run:  python scripts/general_momenta_roundoff.py [--steps 2000] [--case rod2d rod3d gas gas-g liquid] [--no-polish]
 
 Cases: the constrained (inextensible, unshearable) free rod of scripts/rod_constraint_hard_cases.py (base case,
 planar and 3D arc, midpoint, h = 5 ms), and the free gas-filled coupled tube of tests/test_coupled_tube.py
 ("gas-rigid-free-3d", 9 nodes, 12 parcels, h = 1 ms) without gravity, and with it (then P changes by exactly
-h M_tot g per step: the change from P0 + n h M_tot g is reported, and J.g).  Both step through Simulation._solve.
+h M_tot g per step: the change from P0 + n h M_tot g is reported, and J.g), and its "liquid-rigid-free" (a liquid
+held at the levels, theory §10.12).  All step through Simulation._solve (the general Step path).
 Prints the largest changes over the run of P (times L) and J, relative to |J0|; with gravity the linear momentum's
 change from P0 + n h M_tot g and J's component along g.  --no-polish: Simulation.rigid_polish = False.
 """
@@ -30,7 +31,8 @@ def model_of(case):
         return make(h=5e-3, constraint="inextensible_unshearable", **kw), 5e-3
     from test_coupled_tube import CASES, coupled_scene
 
-    kw = {k: v for k, v in CASES["gas-rigid-free-3d"].items() if k != "gravity" or case == "gas-g"}
+    name = "liquid-rigid-free" if case == "liquid" else "gas-rigid-free-3d"
+    kw = {k: v for k, v in CASES[name].items() if k != "gravity" or case == "gas-g"}
     return coupled_scene(nodes=9, parcels=12, **kw), 1e-3
 
 
@@ -38,7 +40,7 @@ def run(case, steps, polish=True):
     model, h = model_of(case)
     sim = Simulation(model, h=h)
     assert sim._fast is None and sim._em is None
-    if hasattr(sim, "rigid_polish"):
+    if hasattr(sim, "rigid_polish"):  # (absent before the polish: the script also measures older commits)
         sim.rigid_polish = polish
     m0 = sim.monitors()
     P0, J0, E0 = np.asarray(m0["linear_momentum"]), np.asarray(m0["angular_momentum"]), m0["energy"]
@@ -66,7 +68,7 @@ def run(case, steps, polish=True):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=2000)
-    ap.add_argument("--case", nargs="+", default=["rod2d", "rod3d", "gas", "gas-g"])
+    ap.add_argument("--case", nargs="+", default=["rod2d", "rod3d", "gas", "gas-g", "liquid"])
     ap.add_argument("--no-polish", action="store_true")
     a = ap.parse_args()
     print("| case | steps | max dP L/abs(J0) | max dJ/abs(J0) | max abs(E/E0-1) | iterations/step | wall s |")
