@@ -16,12 +16,14 @@ Terms know no stepper and no assembly: the model lists them, the stepper sums th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from .coupled_geometry import _k_centreline_weights
 from .rod import _k_element
 from .rod_step_fast import _k_measure
 
@@ -133,6 +135,63 @@ def _rod_derivative(rod, pt, level, elastic=True):
     except ZeroDivisionError:  # a Cayley chart at 180 degrees (as RodPart.gradients)
         return np.full((rod.N + 1, 6), np.nan)
     return D1 if level == 0 else D2
+
+
+@njit(cache=True)
+def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, rod1, g0, g1):
+    """:meth:`CoupledFluid._kinetic_increments`: the rows -mbar/h N_a(s^n) D, +mbar/h N_a(s^{n+1}) D (into rod0, rod1,
+    translational columns) and -mbar/h D . X'(s^n), +mbar/h D . X'(s^{n+1}) (g0, g1) with
+    D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)], c the first node of the
+    label's level-n stencil (the period added past the end of a periodic tube, as ``_centreline_points``).  The bracket
+    does not read dr: D moves with dr to eps |D|, and is exact for a label that does not slide."""
+    n = r0.shape[0]
+    m = s0.shape[0]
+    nodes0 = np.empty((m, 4), np.int64)
+    nodes1 = np.empty((m, 4), np.int64)
+    N0, dN0, d2N = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
+    N1, dN1 = np.empty((m, 4)), np.empty((m, 4))
+    _k_centreline_weights(s0, n, ds, periodic, nodes0, N0, dN0, d2N)
+    _k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
+    D = np.empty(3)
+    c = np.empty(3)
+    for q in range(m):
+        e0 = int(math.floor(s0[q] / ds))
+        e1 = int(math.floor(s1[q] / ds))
+        w = (e0 // n) if periodic else 0
+        for d in range(3):
+            c[d] = r0[nodes0[q, 1], d] + w * period[d]
+        for d in range(3):
+            inc = 0.0
+            b1 = 0.0
+            b0 = 0.0
+            for i in range(4):
+                a1 = nodes1[q, i]
+                a0 = nodes0[q, i]
+                w1 = ((e1 - 1 + i) // n) if periodic else 0
+                w0 = ((e0 - 1 + i) // n) if periodic else 0
+                inc += N1[q, i] * dr[a1, d]
+                b1 += N1[q, i] * ((r0[a1, d] + w1 * period[d]) - c[d])
+                b0 += N0[q, i] * ((r0[a0, d] + w0 * period[d]) - c[d])
+            D[d] = inc + (b1 - b0)
+        cm = mbar[q] / h
+        x0 = 0.0
+        x1 = 0.0
+        for d in range(3):
+            t0 = 0.0
+            t1 = 0.0
+            for i in range(4):
+                a1 = nodes1[q, i]
+                a0 = nodes0[q, i]
+                w1 = ((e1 - 1 + i) // n) if periodic else 0
+                w0 = ((e0 - 1 + i) // n) if periodic else 0
+                t0 += dN0[q, i] * (r0[a0, d] + w0 * period[d])
+                t1 += dN1[q, i] * ((r0[a1, d] + dr[a1, d]) + w1 * period[d])
+                rod0[a0, d] -= cm * N0[q, i] * D[d]
+                rod1[a1, d] += cm * N1[q, i] * D[d]
+            x0 += D[d] * t0
+            x1 += D[d] * t1
+        g0[q] = -cm * x0
+        g1[q] = cm * x1
 
 
 class TubeKinetic:
@@ -443,10 +502,12 @@ class CoupledFluid:
         return (s0 + e.shift, e.positions(pt.r_n), e.frames(pt.Lam_n), e.pad(R0), s1 + e.shift, e.positions(pt.r_1),
                 e.frames(Lam1), e.pad(R1))
 
-    def _parts(self, pt, newton=False):
+    def _parts(self, pt, newton=False, kinetic=True, lv=None):
+        """(potential, kinetic) StepTerms of the kernels; ``kinetic=False``: the kinetic one is None (the caller forms
+        its rows from the increments, :meth:`_kinetic_increments`); ``lv``: :meth:`levels`, when the caller has them."""
         from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
 
-        s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        s0, R0, s1, R1, mu, Lam1 = lv if lv is not None else self.levels(pt)
         if self.level_constraint:  # the multipliers act at the levels (_level_volumes), not at the midpoint
             mu = np.zeros_like(mu)
         if not (self._valid(s0) and self._valid(s1)):
@@ -459,6 +520,8 @@ class CoupledFluid:
             return pot, kin
         pot = fluid_potential_step(fp, pt.h, s0, pt.r_n[:k], pt.Lam_n[:k], R0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu,
                                    newton=newton)
+        if not kinetic:
+            return pot, None
         kin = fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic,
                                   fp.period, newton=newton)
         return pot, kin
@@ -486,32 +549,16 @@ class CoupledFluid:
         rounded to eps |X| (over h: a velocity quantum that Newton and the rigid polish cannot go below, 1e-14 of the
         momentum per label and step for a liquid at h = 1 ms); this one to eps ds, the increments exactly (docs/theory.md
         §10.6, "Momenta to round-off").  A closed tube (not open ends)."""
-        from .coupled_geometry import centreline_weights
         from .coupled_terms import _period_vector
 
-        k, fp, ds = self.n_nodes, self.fp, self.t.ds
-        r0, dr = pt.r_n[:k], pt.dr[:k]
-        n0, N0, dN0, _ = centreline_weights(s0, k, ds, fp.periodic)
-        n1, N1, dN1, _ = centreline_weights(s1, k, ds, fp.periodic)
-        if fp.periodic:  # the period added to the nodes past the end (centreline_and_weights)
-            d = _period_vector(k, ds, fp.period)
-            w0 = np.floor_divide(np.floor(s0 / ds).astype(np.int64)[:, None] + np.arange(-1, 3), k)[:, :, None] * d
-            w1 = np.floor_divide(np.floor(s1 / ds).astype(np.int64)[:, None] + np.arange(-1, 3), k)[:, :, None] * d
-        else:
-            w0 = w1 = 0.0
-        p0 = r0[n0] + w0
-        c = p0[:, 1:2, :]
-        # the increments' part apart from the labels' displacement along the level-n centreline (which does not read
-        # dr): D then moves with dr to eps |D|, and a label that does not slide (s^{n+1} = s^n) has the latter exactly 0
-        D = np.einsum("ki,kid->kd", N1, dr[n1]) + (np.einsum("ki,kid->kd", N1, (r0[n1] + w1) - c)
-                                                    - np.einsum("ki,kid->kd", N0, p0 - c))
-        dX0 = np.einsum("ki,kid->kd", dN0, p0)
-        dX1 = np.einsum("ki,kid->kd", dN1, (r0 + dr)[n1] + w1)
-        cm = fp.mbar / pt.h
+        k, fp = self.n_nodes, self.fp
         rod0, rod1 = np.zeros((k, 6)), np.zeros((k, 6))
-        np.add.at(rod0[:, :3], n0.ravel(), (-(cm[:, None] * N0)[:, :, None] * D[:, None, :]).reshape(-1, 3))
-        np.add.at(rod1[:, :3], n1.ravel(), ((cm[:, None] * N1)[:, :, None] * D[:, None, :]).reshape(-1, 3))
-        return (rod0, -cm * np.sum(D * dX0, axis=1)), (rod1, cm * np.sum(D * dX1, axis=1))
+        g0, g1 = np.empty(len(s0)), np.empty(len(s0))
+        _k_kinetic_increments(np.ascontiguousarray(s0, dtype=np.float64), np.ascontiguousarray(s1, dtype=np.float64),
+                              np.ascontiguousarray(pt.r_n[:k]), np.ascontiguousarray(pt.dr[:k]),
+                              np.ascontiguousarray(fp.mbar, dtype=np.float64), float(pt.h), float(self.t.ds),
+                              bool(fp.periodic), _period_vector(k, self.t.ds, fp.period), rod0, rod1, g0, g1)
+        return (rod0, g0), (rod1, g1)
 
     def value(self, pt):
         pot, kin = self._parts(pt)
@@ -537,17 +584,20 @@ class CoupledFluid:
 
     def add(self, pt, d, level):
         t = self.t
-        pot, kin = self._parts(pt)
+        inc = self.ext is None and pt.dr is not None  # the kinetic rows from the increments (_kinetic_increments)
+        lv = self.levels(pt)
+        pot, kin = self._parts(pt, kinetic=not inc, lv=lv)
         if pot is None:
             d.rod += np.nan
             d.tube_q += np.nan
             d.tube_lam += np.nan
             return
-        Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
-        k_rod, k_s = Dk.rod, Dk.s
-        if self.ext is None and pt.dr is not None:  # the kinetic rows from the increments (_kinetic_increments)
-            s0, _, s1, _, _, _ = self.levels(pt)
-            k_rod, k_s = self._kinetic_increments(pt, s0, s1)[level]
+        Dp = pot.D1 if level == 0 else pot.D2
+        if inc:
+            k_rod, k_s = self._kinetic_increments(pt, lv[0], lv[2])[level]
+        else:
+            Dk = kin.D1 if level == 0 else kin.D2
+            k_rod, k_s = Dk.rod, Dk.s
         gc = np.zeros(t.nconfig)
         i = t.index
         gc[:i["R"]] = Dp.s + k_s
