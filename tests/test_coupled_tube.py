@@ -346,7 +346,8 @@ def _residual_momentum_map(model, step, q0, p0, z):
     R[:, :3] = np.einsum("nij,nj->ni", Lam, R[:, :3])  # the translational rows are in the level-n body frames
     P = R[:, :3].sum(0)
     J = np.cross(r, R[:, :3]).sum(0) + np.einsum("nij,nj->i", Lam, R[:, 3:])
-    return P, J, np.abs(R[:, :3]).sum() + np.sum(np.linalg.norm(r, axis=1) * np.linalg.norm(R[:, :3], axis=1)) + np.abs(R[:, 3:]).sum()
+    size = np.abs(R[:, :3]).sum() + np.abs(R[:, 3:]).sum()
+    return P, J, size + np.sum(np.linalg.norm(r, axis=1) * np.linalg.norm(R[:, :3], axis=1))
 
 
 @pytest.mark.parametrize("case", ["gas-rigid-free-3d", "liquid-rigid-free"])

@@ -545,10 +545,10 @@ class CoupledFluid:
         """The fluid kinetic term's level gradients (rod (n, 6), labels) at levels n and n+1, as
         ``fluid_kinetic_chart``'s (grad = mbar/h D . dD/d(level), D = X_k^{n+1} - X_k^n), with D formed from the rod's
         increments instead of from absolute centreline points: per label, with positions relative to its element's first
-        node c at level n, D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)].  The kernel's D is
-        rounded to eps |X| (over h: a velocity quantum that Newton and the rigid polish cannot go below, 1e-14 of the
-        momentum per label and step for a liquid at h = 1 ms); this one to eps ds, the increments exactly (docs/theory.md
-        §10.6, "Momenta to round-off").  A closed tube (not open ends)."""
+        node c at level n, D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)].
+        The kernel's D is rounded to eps |X| (over h: a velocity quantum that Newton and the rigid polish cannot go
+        below, 1e-14 of the momentum per label and step for a liquid at h = 1 ms); this one moves with dr to eps |D|
+        (docs/theory.md §10.6, "Momenta to round-off").  A closed tube (not open ends)."""
         from .coupled_terms import _period_vector
 
         k, fp = self.n_nodes, self.fp
@@ -626,8 +626,8 @@ class CoupledFluid:
             d.tube_lam += gz[t.nq:]
 
     def rigid_part(self, pt, d):
-        """Add the level-n pieces of the fluid's D1 rod rows that the rigid motions do not annihilate into ``d`` (docs/theory.md
-        §10.6): the kinetic rows -mbar_k N_j(s_k^n) v_k^X (its kernel's) and the weight (h/2) mbar_k N_j(sbar_k) g; the
+        """Add the level-n pieces of the fluid's D1 rod rows that the rigid motions do not annihilate into ``d``
+        (docs/theory.md §10.6): the kinetic rows -mbar_k N_j(s_k^n) v_k^X (its kernel's) and the weight (h/2) mbar_k N_j(sbar_k) g; the
         internal energy's, the incompressibility's and p_ext's sums vanish identically (closed ends).  Returns the
         labels' point masses (mbar, X^n, X^{n+1}) of the polish's 6x6 system.  A closed tube only (not open ends)."""
         from .coupled_geometry import centreline_and_weights

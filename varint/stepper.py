@@ -77,7 +77,8 @@ class Step:
             if rod.periodic:
                 u[rod.N] = u[0]  # the image node moves with node 0
             pt.Lam_n, pt.r_n = Lam_n, r_n
-            pt.dr = np.matmul(Lam_n, u[:, :3, None])[:, :, 0]  # the increments, unrounded by |r| (§9 "Momenta to round-off")
+            # the increments, unrounded by |r| (docs/theory.md §10.6 "Momenta to round-off")
+            pt.dr = np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
             pt.r_1 = r_n + pt.dr
             pt.xi = u[:, 3:]
             if rod.constrained:
