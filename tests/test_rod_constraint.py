@@ -315,3 +315,22 @@ def test_constraint_static_blocks_are_the_derivative_of_the_constraint_force():
         e[i] = 1e-7
         Gfd[:, i] = (strains(e) - strains(-e)) / 2e-7
     assert np.max(np.abs(G.toarray() - Gfd)) < 1e-6 * np.max(np.abs(Gfd))
+
+
+def test_free_constrained_rod_keeps_its_momenta_to_round_off_over_1000_steps():
+    """theory §9a/§10.6, "Momenta to round-off" in the general Step path: the free spinning bent rod of the test above,
+    1000 steps at h = 1 ms.  Measured max (every 10th step) |dP| L/|J0|, |dJ|/|J0|: 1.2e-14, 7.0e-15; before the
+    element kernels read the increments and the step was polished along the rigid motions: 2.0e-12, 1.2e-12."""
+    model = constrained(rod_scene(nodes=11, h=1e-3, initial={"curvature": [0.0, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]}))
+    sim = Simulation(model)
+    m0 = sim.monitors()
+    P0, J0 = m0["linear_momentum"], m0["angular_momentum"]
+    scale = np.linalg.norm(J0)
+    dP = dJ = 0.0
+    for n in range(1000):
+        sim.step()
+        if n % 10 == 9:
+            mo = sim.monitors()
+            dP = max(dP, np.abs(mo["linear_momentum"] - P0).max() * model.rod.L / scale)
+            dJ = max(dJ, np.abs(mo["angular_momentum"] - J0).max() / scale)
+    assert dP < 1e-13 and dJ < 5e-14, (dP, dJ)

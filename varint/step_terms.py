@@ -16,10 +16,16 @@ Terms know no stepper and no assembly: the model lists them, the stepper sums th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
+
+from .coupled_geometry import _k_centreline_weights
+from .rod import _k_element
+from .rod_step_fast import _k_measure
 
 __all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements",
            "RodConstraint", "CoupledFluid"]
@@ -39,6 +45,9 @@ class StepPoint:
     r_1: np.ndarray | None = None  #: rod positions at level n+1
     Lam_1: np.ndarray | None = None  #: rod frames at level n+1, re-orthonormalised (set when f^+ is asked)
     rod_lam: np.ndarray | None = None  #: the inextensible rod's multipliers (N, 3), at level n (SHAKE)
+    #: the rod's increments r_1 - r_n = Lambda_n b, unrounded by |r| (the rod's kinetic rows read these, docs/theory.md
+    #: §9, "Momenta to round-off"); None: the element kernel forms r_1 - r_n from the absolute positions
+    dr: np.ndarray | None = None
 
 
 class Derivatives:
@@ -58,6 +67,131 @@ def _embed(block, offset, nz):
         return sp.csc_matrix(block)
     block = sp.coo_matrix(block)
     return sp.csc_matrix((block.data, (block.row + offset, block.col + offset)), shape=(nz, nz))
+
+
+@njit(cache=True)
+def _k_rod_gradient_centred(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
+    """D1, D2 (N+1, 6) of the rod's element kernels (:func:`varint.rod._k_element`, as ``varint.rod._k_gradient``) with
+    each element evaluated in coordinates centred on its first node: r_a^n = 0, r_b^n = r_b^n - r_a^n, r_a^{n+1} = dr_a,
+    r_b^{n+1} = (r_b^n - r_a^n) + dr_b, dr the increments Lambda^n b (docs/theory.md §9, "Momenta to round-off": the
+    gradients depend on positions only through differences; the velocities are then the increments themselves, not
+    differences of positions rounded to eps |r|, and Newton can meet the momentum balances below that quantum).  The
+    kernel forms node b's velocity as (r_b^{n+1} - r_b^n), which rounds it to eps ds; its rounding error
+    delta = dr_b - ((r_b^n - r_a^n + dr_b) - (r_b^n - r_a^n)) is exact in floating point, and node b's kinetic rows
+    get c rhoA delta / (2 h^2) (signed as the kernel's), so both nodes' kinetic rows read their exact increments.
+    Returns nothing (the value L_d, which reads the absolute positions through gravity, is ``_k_gradient``'s)."""
+    N = Lam_n.shape[0] - 1
+    M = np.empty((5, 3, 3))
+    V = np.empty((16, 3))
+    e1 = np.empty(12)
+    e2 = np.empty(12)
+    za = np.zeros(3)
+    rb0 = np.empty(3)
+    rb1 = np.empty(3)
+    dlt = np.empty(3)
+    ih2 = 1.0 / (h * h)
+    D1[:] = 0.0
+    D2[:] = 0.0
+    for e in range(N):
+        for i in range(3):
+            rb0[i] = r_n[e + 1, i] - r_n[e, i]
+            rb1[i] = rb0[i] + dr[e + 1, i]
+            dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
+        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1], dr[e],
+                   rb1, lev_lo, lev_hi, e1, e2, M, V)
+        c = h * ds * (_k_measure(e, ds, Lam_n, r_n, xi, dr, M[0], M[1], M[2]) if paper else 1.0)
+        for i in range(3):
+            k = c * 0.5 * rhoA * dlt[i] * ih2
+            e1[6 + i] -= k
+            e2[6 + i] += k
+        for i in range(6):
+            D1[e, i] += e1[i]
+            D1[e + 1, i] += e1[6 + i]
+            D2[e, i] += e2[i]
+            D2[e + 1, i] += e2[6 + i]
+    for i in range(3):
+        D1[N, i] += 0.5 * h * force[i]
+        D2[N, i] += 0.5 * h * force[i]
+
+
+def _rod_derivative(rod, pt, level, elastic=True):
+    """The rod's D1 (level 0) or D2 (level 1) at the step point, from its increments ``pt.dr`` when the point has them
+    (:func:`_k_rod_gradient_centred`), else ``rod.derivative``.  ``elastic=False``: the kinetic, weight and tip-force
+    pieces only (the stiffnesses set to zero), the closed-form momentum balances' rod part."""
+    if pt.dr is None and elastic:
+        return rod.derivative(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, level=level)
+    _, rhoA, inertia, J, K, g, force = rod._consts()
+    if not elastic:
+        J, K = np.zeros(3), np.zeros(3)
+    dr = pt.dr if pt.dr is not None else pt.r_1 - pt.r_n
+    D1 = np.empty((rod.N + 1, 6))
+    D2 = np.empty((rod.N + 1, 6))
+    f8 = np.float64
+    try:
+        _k_rod_gradient_centred(float(pt.h), rod.ds, rhoA, inertia, J, K, g, force, rod.paper_measure,
+                                np.ascontiguousarray(pt.Lam_n, dtype=f8), np.ascontiguousarray(pt.r_n, dtype=f8),
+                                np.ascontiguousarray(pt.xi, dtype=f8), np.ascontiguousarray(dr, dtype=f8), level, level + 1,
+                                D1, D2)
+    except ZeroDivisionError:  # a Cayley chart at 180 degrees (as RodPart.gradients)
+        return np.full((rod.N + 1, 6), np.nan)
+    return D1 if level == 0 else D2
+
+
+@njit(cache=True)
+def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, rod1, g0, g1):
+    """:meth:`CoupledFluid._kinetic_increments`: the rows -mbar/h N_a(s^n) D, +mbar/h N_a(s^{n+1}) D (into rod0, rod1,
+    translational columns) and -mbar/h D . X'(s^n), +mbar/h D . X'(s^{n+1}) (g0, g1) with
+    D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)], c the first node of the
+    label's level-n stencil (the period added past the end of a periodic tube, as ``_centreline_points``).  The bracket
+    does not read dr: D moves with dr to eps |D|, and is exact for a label that does not slide."""
+    n = r0.shape[0]
+    m = s0.shape[0]
+    nodes0 = np.empty((m, 4), np.int64)
+    nodes1 = np.empty((m, 4), np.int64)
+    N0, dN0, d2N = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
+    N1, dN1 = np.empty((m, 4)), np.empty((m, 4))
+    _k_centreline_weights(s0, n, ds, periodic, nodes0, N0, dN0, d2N)
+    _k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
+    D = np.empty(3)
+    c = np.empty(3)
+    for q in range(m):
+        e0 = int(math.floor(s0[q] / ds))
+        e1 = int(math.floor(s1[q] / ds))
+        w = (e0 // n) if periodic else 0
+        for d in range(3):
+            c[d] = r0[nodes0[q, 1], d] + w * period[d]
+        for d in range(3):
+            inc = 0.0
+            b1 = 0.0
+            b0 = 0.0
+            for i in range(4):
+                a1 = nodes1[q, i]
+                a0 = nodes0[q, i]
+                w1 = ((e1 - 1 + i) // n) if periodic else 0
+                w0 = ((e0 - 1 + i) // n) if periodic else 0
+                inc += N1[q, i] * dr[a1, d]
+                b1 += N1[q, i] * ((r0[a1, d] + w1 * period[d]) - c[d])
+                b0 += N0[q, i] * ((r0[a0, d] + w0 * period[d]) - c[d])
+            D[d] = inc + (b1 - b0)
+        cm = mbar[q] / h
+        x0 = 0.0
+        x1 = 0.0
+        for d in range(3):
+            t0 = 0.0
+            t1 = 0.0
+            for i in range(4):
+                a1 = nodes1[q, i]
+                a0 = nodes0[q, i]
+                w1 = ((e1 - 1 + i) // n) if periodic else 0
+                w0 = ((e0 - 1 + i) // n) if periodic else 0
+                t0 += dN0[q, i] * (r0[a0, d] + w0 * period[d])
+                t1 += dN1[q, i] * ((r0[a1, d] + dr[a1, d]) + w1 * period[d])
+                rod0[a0, d] -= cm * N0[q, i] * D[d]
+                rod1[a1, d] += cm * N1[q, i] * D[d]
+            x0 += D[d] * t0
+            x1 += D[d] * t1
+        g0[q] = -cm * x0
+        g1[q] = cm * x1
 
 
 class TubeKinetic:
@@ -177,7 +311,16 @@ class RodElements:
         return self.rod.gradients(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1)[2]
 
     def add(self, pt, d, level):
-        d.rod += self.rod.derivative(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, level=level)
+        d.rod += _rod_derivative(self.rod, pt, level)
+
+    def rigid_part(self, pt, d):
+        """Add the level-n pieces of D1 that the rigid motions do not annihilate (kinetic, weight, tip force; the
+        elastic forces' sums vanish identically, docs/theory.md §9, "Momenta to round-off") into ``d``; return the
+        point masses (m, x_n, x_{n+1}) and the rotational inertias (I (N+1, 3), Lambda_n) of the polish's 6x6 system."""
+        rod = self.rod
+        d.rod += _rod_derivative(rod, pt, 0, elastic=False)
+        dr = pt.dr if pt.dr is not None else pt.r_1 - pt.r_n
+        return (rod.node_mass, pt.r_n, pt.r_n + dr), (rod.node_inertia, pt.Lam_n)
 
     def jacobian(self, pt):
         return _embed(self.rod.step_jacobian(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1), self.offset, self.nz)
@@ -359,10 +502,12 @@ class CoupledFluid:
         return (s0 + e.shift, e.positions(pt.r_n), e.frames(pt.Lam_n), e.pad(R0), s1 + e.shift, e.positions(pt.r_1),
                 e.frames(Lam1), e.pad(R1))
 
-    def _parts(self, pt, newton=False):
+    def _parts(self, pt, newton=False, kinetic=True, lv=None):
+        """(potential, kinetic) StepTerms of the kernels; ``kinetic=False``: the kinetic one is None (the caller forms
+        its rows from the increments, :meth:`_kinetic_increments`); ``lv``: :meth:`levels`, when the caller has them."""
         from .coupled_terms import fluid_kinetic_chart, fluid_potential_step
 
-        s0, R0, s1, R1, mu, Lam1 = self.levels(pt)
+        s0, R0, s1, R1, mu, Lam1 = lv if lv is not None else self.levels(pt)
         if self.level_constraint:  # the multipliers act at the levels (_level_volumes), not at the midpoint
             mu = np.zeros_like(mu)
         if not (self._valid(s0) and self._valid(s1)):
@@ -375,6 +520,8 @@ class CoupledFluid:
             return pot, kin
         pot = fluid_potential_step(fp, pt.h, s0, pt.r_n[:k], pt.Lam_n[:k], R0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu,
                                    newton=newton)
+        if not kinetic:
+            return pot, None
         kin = fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds, fp.periodic,
                                   fp.period, newton=newton)
         return pot, kin
@@ -393,6 +540,25 @@ class CoupledFluid:
         k = self.n_nodes
         return (fluid_potential_static(self.fp0, s0, pt.r_n[:k], pt.Lam_n[:k], R0, mu=mu, hessian=hessian),
                 fluid_potential_static(self.fp0, s1, pt.r_1[:k], Lam1[:k], R1, mu=mu, hessian=hessian))
+
+    def _kinetic_increments(self, pt, s0, s1):
+        """The fluid kinetic term's level gradients (rod (n, 6), labels) at levels n and n+1, as
+        ``fluid_kinetic_chart``'s (grad = mbar/h D . dD/d(level), D = X_k^{n+1} - X_k^n), with D formed from the rod's
+        increments instead of from absolute centreline points: per label, with positions relative to its element's first
+        node c at level n, D = sum_a N_a(s^{n+1}) dr_a + [sum_a N_a(s^{n+1}) (r_a^n - c) - sum_a N_a(s^n) (r_a^n - c)].
+        The kernel's D is rounded to eps |X| (over h: a velocity quantum that Newton and the rigid polish cannot go
+        below, 1e-14 of the momentum per label and step for a liquid at h = 1 ms); this one moves with dr to eps |D|
+        (docs/theory.md §10.6, "Momenta to round-off").  A closed tube (not open ends)."""
+        from .coupled_terms import _period_vector
+
+        k, fp = self.n_nodes, self.fp
+        rod0, rod1 = np.zeros((k, 6)), np.zeros((k, 6))
+        g0, g1 = np.empty(len(s0)), np.empty(len(s0))
+        _k_kinetic_increments(np.ascontiguousarray(s0, dtype=np.float64), np.ascontiguousarray(s1, dtype=np.float64),
+                              np.ascontiguousarray(pt.r_n[:k]), np.ascontiguousarray(pt.dr[:k]),
+                              np.ascontiguousarray(fp.mbar, dtype=np.float64), float(pt.h), float(self.t.ds),
+                              bool(fp.periodic), _period_vector(k, self.t.ds, fp.period), rod0, rod1, g0, g1)
+        return (rod0, g0), (rod1, g1)
 
     def value(self, pt):
         pot, kin = self._parts(pt)
@@ -418,21 +584,28 @@ class CoupledFluid:
 
     def add(self, pt, d, level):
         t = self.t
-        pot, kin = self._parts(pt)
+        inc = self.ext is None and pt.dr is not None  # the kinetic rows from the increments (_kinetic_increments)
+        lv = self.levels(pt)
+        pot, kin = self._parts(pt, kinetic=not inc, lv=lv)
         if pot is None:
             d.rod += np.nan
             d.tube_q += np.nan
             d.tube_lam += np.nan
             return
-        Dp, Dk = (pot.D1, kin.D1) if level == 0 else (pot.D2, kin.D2)
+        Dp = pot.D1 if level == 0 else pot.D2
+        if inc:
+            k_rod, k_s = self._kinetic_increments(pt, lv[0], lv[2])[level]
+        else:
+            Dk = kin.D1 if level == 0 else kin.D2
+            k_rod, k_s = Dk.rod, Dk.s
         gc = np.zeros(t.nconfig)
         i = t.index
-        gc[:i["R"]] = Dp.s + Dk.s
+        gc[:i["R"]] = Dp.s + k_s
         if self.ext is not None:
             d.rod[:self.n_nodes] += self.ext.fold_gradient(Dp.rod + Dk.rod)
             gc[i["R"]:i["R"] + t.nR] = self.R_weight * self.ext.fold_radii(Dp.R)
         else:
-            d.rod[:self.n_nodes] += Dp.rod + Dk.rod
+            d.rod[:self.n_nodes] += Dp.rod + k_rod
             gc[i["R"]:i["R"] + t.nR] = self.R_weight * Dp.R
         if level == 0 and t.incompressible:
             gc[i["mu"]:] = pot.Dmu
@@ -451,6 +624,30 @@ class CoupledFluid:
         d.tube_q += gz[:t.nq]
         if level == 0:
             d.tube_lam += gz[t.nq:]
+
+    def rigid_part(self, pt, d):
+        """Add the level-n pieces of the fluid's D1 rod rows that the rigid motions do not annihilate into ``d``
+        (docs/theory.md §10.6): the kinetic rows -mbar_k N_j(s_k^n) v_k^X (its kernel's) and the weight (h/2) mbar_k N_j(sbar_k) g; the
+        internal energy's, the incompressibility's and p_ext's sums vanish identically (closed ends).  Returns the
+        labels' point masses (mbar, X^n, X^{n+1}) of the polish's 6x6 system.  A closed tube only (not open ends)."""
+        from .coupled_geometry import centreline_and_weights
+        from .coupled_terms import fluid_kinetic_chart
+
+        s0, _, s1, _, _, _ = self.levels(pt)
+        k, fp = self.n_nodes, self.fp
+        r1 = pt.r_n + pt.dr if pt.dr is not None else pt.r_1
+        if pt.dr is not None:
+            d.rod[:k] += self._kinetic_increments(pt, s0, s1)[0][0]
+        else:
+            d.rod[:k] += fluid_kinetic_chart(s0, pt.r_n[:k], pt.Lam_n[:k], s1, pt.r_1[:k], fp.mbar, pt.h, self.t.ds,
+                                             fp.periodic, fp.period).D1.rod
+        X0 = centreline_and_weights(s0, pt.r_n[:k], self.t.ds, fp.periodic, fp.period)[3]
+        X1 = centreline_and_weights(s1, r1[:k], self.t.ds, fp.periodic, fp.period)[3]
+        if np.any(fp.g != 0.0):
+            nodes, Nw = centreline_and_weights(0.5 * (s0 + s1), pt.r_n[:k], self.t.ds, fp.periodic, fp.period)[:2]
+            f = (0.5 * pt.h * fp.mbar)[:, None, None] * Nw[:, :, None] * fp.g[None, None, :]
+            np.add.at(d.rod[:, :3], nodes.ravel(), f.reshape(-1, 3))
+        return (fp.mbar, X0, X1), None
 
     def jacobian(self, pt):
         pot, kin = self._parts(pt, newton=True)

@@ -34,6 +34,10 @@ from .open_ends_stepping import OpenEndsStepping
 from .rod import ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, pack_level, reorthonormalize, unpack_level
 from .step_terms import Derivatives, StepPoint
 
+
+def _hat(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
 __all__ = ["Step", "make_scheme", "State", "StepStats", "Simulation"]
 
 log = logging.getLogger(__name__)
@@ -73,7 +77,9 @@ class Step:
             if rod.periodic:
                 u[rod.N] = u[0]  # the image node moves with node 0
             pt.Lam_n, pt.r_n = Lam_n, r_n
-            pt.r_1 = r_n + np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
+            # the increments, unrounded by |r| (docs/theory.md §10.6 "Momenta to round-off")
+            pt.dr = np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
+            pt.r_1 = r_n + pt.dr
             pt.xi = u[:, 3:]
             if rod.constrained:
                 lam_r = np.zeros((rod.N, 3))
@@ -163,6 +169,61 @@ class Step:
             if rod.constrained:
                 parts.append(d.rod_lam[:, :rod.ncomp].ravel())
         return np.concatenate(parts) if parts else np.empty(0)
+
+    def rigid_balances(self, q0, p0, z):
+        """The step's linear and angular momentum balances at z in closed form, (P, J) (moments about the level's floating
+        origin), and the 6x6 matrix G of their change -(1/h) G (a, w) along a rigid motion (a, w) of level n+1
+        (docs/theory.md §10.6, "Momenta to round-off"): the momentum map of pi_n + D1 L_d + f^- with only the terms'
+        pieces that rigid motions do not annihilate (their ``rigid_part``: inertia, weight, loads; the internal forces'
+        sums vanish identically), and the forces' f^-."""
+        m = self.model
+        rod = m.rod
+        pt = self.point(q0, z)
+        d = Derivatives(m)
+        points, spins = [], []
+        for t in self.terms:
+            if hasattr(t, "rigid_part"):
+                pts, sp_ = t.rigid_part(pt, d)
+                points.append(pts)
+                if sp_ is not None:
+                    spins.append(sp_)
+        for force in m.forces:
+            force.add(pt, d, 0)
+        pi_n = p0[m.rod_p].reshape(2, rod.N + 1, 3).transpose(1, 0, 2).reshape(rod.N + 1, 6)
+        R = pi_n + d.rod  # each node's momentum and inertial pieces combined before the sums (they nearly cancel)
+        P = R[:, :3].sum(0)
+        J = np.cross(pt.r_n, R[:, :3]).sum(0) + np.einsum("nij,nj->i", pt.Lam_n, R[:, 3:])
+        G = np.zeros((6, 6))
+        eye = np.eye(3)
+        for mass, x0, x1 in points:
+            G[:3, :3] += mass.sum() * eye
+            S0, S1 = (mass[:, None] * x0).sum(0), (mass[:, None] * x1).sum(0)
+            G[:3, 3:] -= _hat(S1)
+            G[3:, :3] += _hat(S0)
+            G[3:, 3:] += float(np.einsum("n,ni,ni->", mass, x0, x1)) * eye - np.einsum("n,ni,nj->ij", mass, x1, x0)
+        for inertia, Lam in spins:  # dk/dxi = I + O(xi): enough for one correction of the floor's size
+            G[3:, 3:] += np.einsum("nia,na,nja->ij", Lam, inertia, Lam)
+        return P, J, G, pt
+
+    def rigid_polish(self, q0, p0, z):
+        """z moved along the six rigid motions of level n+1 so that the closed-form momentum balances of
+        :meth:`rigid_balances` vanish: b_j += Lambda_j^T (a + w x r_j^{n+1}), xi_j += dcay^-1_{xi_j} Lambda_j^T w (on the
+        support mask).  The motion leaves every strain of level n+1, the labels and the radii unchanged, so the other
+        rows keep their floor; it is of the size of Newton's floor (docs/theory.md §10.6, "Momenta to round-off")."""
+        m = self.model
+        rod = m.rod
+        P, J, G, pt = self.rigid_balances(q0, p0, z)
+        aw = np.linalg.solve(G, self.h * np.concatenate([P, J]))
+        a, w = aw[:3], aw[3:]
+        u = np.zeros((rod.N + 1, 6))
+        Lt = np.swapaxes(pt.Lam_n, 1, 2)
+        u[:, :3] = np.einsum("nij,nj->ni", Lt, a + np.cross(w, pt.r_n + pt.dr))
+        s = Lt @ w
+        x = pt.xi
+        u[:, 3:] = s - 0.5 * np.cross(x, s) + 0.25 * np.sum(x * s, axis=1)[:, None] * x
+        z = z.copy()
+        z[m.rod_z] += u.ravel()[self._rod_flat]
+        return z
 
     def jacobian(self, q0, z):
         """Exact d(residual)/dz: the sum of the terms' blocks and of the forces' (None when a force's f^-
@@ -484,7 +545,19 @@ class Simulation(OpenEndsStepping):
                 f"{advice}", step=n1, time=n1 * self.h, residual=res.error, rate=res.rate)
         if res.message != "damped Newton":
             self._factor = res.factor
-        return res.z, res.iterations, res.n_residual, res.n_jacobian
+        z = res.z
+        if self._polishes():
+            z = sch.rigid_polish(st.q, st.p, z)
+        return z, res.iterations, res.n_residual, res.n_jacobian
+
+    #: polish a free rod's step solution in the six rigid directions (Step.rigid_polish; docs/theory.md §10.6,
+    #: "Momenta to round-off"); False: Newton's solution as it is (the floor before, for comparison)
+    rigid_polish = True
+
+    def _polishes(self):
+        """A free rod with open ends (a support or a period breaks the rigid motions; open tube ends let momentum in)."""
+        rod = self.model.rod
+        return bool(self.rigid_polish and rod is not None and rod.free and not rod.periodic and not self.open)
 
     def step(self):
         if self._fast is not None:
