@@ -1006,7 +1006,8 @@ class FastRodStep:
         self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
-        #: the last step's Newton counts, and whether it needed the stepper's damped Newton
+        #: the last step's Newton counts (n_jacobian: every Jacobian made, n_jacobian_fd: the finite-difference ones
+        #: among them), and whether it needed the stepper's damped Newton
         self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0, "n_jacobian_fd": 0, "fallback": False}
         self._has_data = model.state_data() is not None
 
@@ -1170,7 +1171,7 @@ class FastRodStep:
         _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, self.color, Lam, r,
                      origin, p, v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
                      self.col, self.ab, self.ipiv, self.G, st)
-        iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
+        iters, nres, njac = int(st[1]), int(st[2]), int(st[3]) + int(st[10])  # every Jacobian, exact or differenced
         fell_back = not st[0]
         if fell_back:
             z0 = 2.0 * v[self.vsel] - vprev[self.vsel] if linear else v[self.vsel]
