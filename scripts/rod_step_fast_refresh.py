@@ -11,8 +11,11 @@ or a norm, deterministic (no timing): the cost ratios are scripts/bench_rod_step
   (default)       iterations, exact and finite-difference Jacobians and residuals per step, the rate rule alone
                   (fd_refresh=False, the step before the refresh) against the default, and the largest relative
                   difference of the two runs' positions and frames
+  --timing        the two alternately in one process, each round the same stretch of the motion from the same state
+                  (cheapest of --rounds each): their cost ratio (fd_refresh=False is bit for bit the step before;
+                  scripts/bench_rod_step_vs_commit.py loads that step itself from git)
 
-Run:  python scripts/rod_step_fast_refresh.py [--contraction] [--steps 256]
+Run:  python scripts/rod_step_fast_refresh.py [--contraction | --timing] [--steps 256] [--rounds 10]
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -48,13 +52,46 @@ def run(N, k, dim, steps, **kw):
     return c / steps, st, fast.fallbacks
 
 
+CONFIGS = [(2, N, 64) for N in (10, 25, 50, 100, 200, 400)] + [(2, 100, k) for k in (16, 256, 1024, 4096)]
+CONFIGS += [(3, 100, 64), (3, 400, 64)]
+
+
+def timing(rounds):
+    """Each round runs both steps over the same stretch of the motion from the same state (after invalidate(): the
+    same arithmetic every round), the cheapest round of each counts.  Not blocks of a continuing run: the iterations
+    of the step before vary with the phase of the motion (4 to 8 at 1024 steps per period), those after much less,
+    so the cheapest of consecutive blocks would compare different phases."""
+    print("| model | elements | steps per period | steps timed | before µs/step | after µs/step | after / before |")
+    print("|---|---|---|---|---|---|---|")
+    for dim, N, k in CONFIGS:
+        steps = max(128, min(k // 2, 20000 // N))
+        runs = {}
+        for fd in (False, True):
+            f = FastRodStep(cantilever(N, T1 / k, dim), fd_refresh=fd)
+            st0 = f.step(Simulation(f.model).state)
+            for _ in range(32):
+                st0 = f.step(st0)
+            runs[fd] = [f, st0, math.inf]
+        for _ in range(rounds):
+            for fd in (False, True):
+                r = runs[fd]
+                f = r[0]
+                f.invalidate()
+                st = f.step(r[1])  # the first Jacobian, untimed
+                t0 = time.perf_counter()
+                for _ in range(steps):
+                    st = f.step(st)
+                r[2] = min(r[2], (time.perf_counter() - t0) / steps)
+        b, a = runs[False][2], runs[True][2]
+        print(f"| {'planar' if dim == 2 else '3D'} | {N} | {k} | {steps} | {b * 1e6:.1f} | {a * 1e6:.1f} | {a / b:.3f} |",
+              flush=True)
+
+
 def counts(steps):
     print("| model | elements | steps per period | it./step before | after | complex-step Jac./step before | after | "
           "FD Jac./step after | residuals/step before | after | max rel. diff. of q |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    configs = [(2, N, 64) for N in (10, 25, 50, 100, 200, 400)] + [(2, 100, k) for k in (16, 256, 1024, 4096)]
-    configs += [(3, 100, 64), (3, 400, 64)]
-    for dim, N, k in configs:
+    for dim, N, k in CONFIGS:
         b, sb, fb_b = run(N, k, dim, steps, fd_refresh=False)
         a, sa, fb_a = run(N, k, dim, steps)
         diff = float(np.abs(sa.q - sb.q).max() / np.abs(sb.q).max())
@@ -115,9 +152,14 @@ def contraction(steps):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--contraction", action="store_true")
+    ap.add_argument("--timing", action="store_true")
     ap.add_argument("--steps", type=int, default=256)
+    ap.add_argument("--rounds", type=int, default=10)
     args = ap.parse_args()
-    (contraction if args.contraction else counts)(args.steps)
+    if args.timing:
+        timing(args.rounds)
+    else:
+        (contraction if args.contraction else counts)(args.steps)
 
 
 if __name__ == "__main__":
