@@ -15,8 +15,11 @@ gradient), but
   allocation per iteration;
 * the Jacobian is stored as a band (node-ordered unknowns; a periodic rod's nodes interleaved 0, 1, N-1, 2, N-2, ...
   so that its wrap-around couplings stay in the band) and factorised by a compiled banded LU with partial pivoting
-  (``_k_band_lu``, LAPACK's dgbtf2), reused across chord iterations and across steps, refreshed by the stepper's rule
-  (contraction rate above ``RATE_REFRESH_ROD``);
+  (``_k_band_lu``, LAPACK's dgbtf2), reused across chord iterations and across steps; the Jacobian is made by coloured
+  forward differences of the compiled residual (``_k_band_jacobian_fd``, 3 d residuals instead of ~40 of complex
+  steps), refreshed within a step by the stepper's rule (contraction rate above ``RATE_REFRESH_FAST``) and between
+  steps once the iterations spent beyond the fewest on the current factorisation add up to the refresh's own cost
+  (docs/theory.md §9, "Jacobian refresh");
 * the predictor extrapolates the last two steps' (b, xi) linearly (second order; the stepper's is the last step's,
   first order), and the iteration stops, as the stepper's, at the round-off floor (``POLISH_ROD`` polishing updates
   past ``newton_tol`` while they still contract);
@@ -68,6 +71,14 @@ CHORD_ITERATIONS = 30  #: iterations allowed on an inherited factorisation (Simu
 #: measured on the released cantilever at 100 elements, 0.15 / 0.3 / 0.5 gave 594 / 506 / 430 us per step at 16
 #: steps per period (0.43 / 0.25 / 0.18 Jacobians per step) and 298 / 267 / 269 at 64 (shared machine)
 RATE_REFRESH_FAST = 0.5
+#: the difference step of the coloured finite-difference Jacobian (``_k_band_jacobian_fd``), times each unknown's
+#: scale (ds for b, 1 for xi): its chord contraction equals the exact Jacobian's to 3 digits at 1e-5..1e-8 (100 planar
+#: elements, docs/theory.md §9 "Jacobian refresh")
+FD_STEP = 1e-7
+#: a compiled band LU and band solve in residuals (per node direction count d = 3 planar, 6 in 3D), for the refresh's
+#: cost in iterations (FastRodStep.refresh_cost); measured at 100 and 1000 elements (loaded 2-core machine): planar LU
+#: ~1.2 residuals, solve ~0.4; 3D LU ~4.9, solve ~1.6
+LU_SOLVE_COST = {3: (1.2, 0.4), 6: (4.9, 1.6)}
 
 
 def supports(model):
@@ -287,6 +298,63 @@ def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1
     return ok
 
 
+@njit(cache=True, error_model="numpy")
+def _k_band_jacobian_fd(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
+                        kl, ku, scale, color, ncolor, xi, r_1, dr, D, M, V, e1, e2, r0, zp, rp, ab):
+    """The step's Jacobian at z by forward differences of the compiled residual, coloured (Curtis, Powell & Reid,
+    IMA J. Appl. Math. 13, 1974): a node's rows depend only on its own and its two neighbours' unknowns, so one
+    direction of every node of one colour (nodes two or fewer places apart, around a period, differ in colour) is
+    perturbed at once and each difference is read off in the rows of the perturbed node and its neighbours: 3 d
+    residuals (d directions per node; a periodic rod whose node count is no multiple of 3, 4 d) instead of the
+    complex steps of every element column (~40 residuals, ``_k_band_jacobian``).  Step FD_STEP x scale, taken as the
+    representable difference zp - z.  r0 receives the residual at z (band order), the chord iteration's first.
+    Returns the number of residuals evaluated, negated if one is not finite."""
+    n1 = idx.shape[0]
+    N = n1 - 1
+    nn = N if periodic else n1
+    n = z.shape[0]
+    kv = kl + ku
+    ab[:, :] = 0.0
+    if not _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
+                       xi, r_1, dr, D, M, V, e1, e2, r0):
+        return -1
+    count = 1
+    for c in range(ncolor):
+        for comp in range(6):
+            for k in range(n):
+                zp[k] = z[k]
+            moved = False
+            for j in range(nn):
+                k = idx[j, comp]
+                if color[j] == c and k >= 0:
+                    zp[k] = z[k] + FD_STEP * scale[k]
+                    moved = True
+            if not moved:
+                continue
+            count += 1
+            if not _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, zp, idx,
+                               bpos, xi, r_1, dr, D, M, V, e1, e2, rp):
+                return -count
+            for j in range(nn):
+                kc = idx[j, comp]
+                if color[j] != c or kc < 0:
+                    continue
+                inv = 1.0 / (zp[kc] - z[kc])
+                pc = bpos[kc]
+                for o in range(-1, 2):
+                    i = j + o
+                    if periodic:
+                        i = (i + N) % N
+                    elif i < 0 or i > N:
+                        continue
+                    for rc in range(6):
+                        kr = idx[i, rc]
+                        if kr >= 0:
+                            pr = bpos[kr]
+                            ab[pc, kv + pr - pc] = (rp[pr] - r0[pr]) * inv
+    return count
+
+
 def _complex_scratch():
     """Complex work arrays of :func:`_k_band_jacobian` (built once per FastRodStep)."""
     c = np.complex128
@@ -329,7 +397,7 @@ def _k_stats(stats, converged, iterations, n_res, n_jac, err, factor_valid, code
 @njit(cache=True, error_model="numpy")
 def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, kl, ku,
             scale, tol, max_iter, rate_refresh, polish, floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab, ipiv,
-            have_factor, stats):
+            have_factor, fd_on, fd_now, color, ncolor, zp, rp, stats):
     """Newton's chord iteration of varint.newton.newton on the step residual, all compiled.
 
     ``z`` holds the predictor on entry and the solution on exit; ``ab``/``ipiv`` the factorisation, reused when
@@ -342,12 +410,32 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     floor itself is within 10x of tol, where the stepper accepts a stagnating update), the iteration stops when the
     next update predicted from the contraction rate, rate x err, is below the floor: the stepper would take that
     update and one or two more of round-off size to see that they stop shrinking; (b) an update within twice the
-    floor that stops contracting is round-off: no new Jacobian is spent on it."""
+    floor that stops contracting is round-off: no new Jacobian is spent on it.
+
+    ``fd_on``: every Jacobian is the coloured finite-difference one (``_k_band_jacobian_fd``; its base residual is
+    the next iteration's), the exact one (complex steps) only where that is not finite or singular; ``fd_now``: first
+    replace the inherited factorisation by one at the predictor (the refresh rule of ``_k_full_step``).  stats[10]:
+    the finite-difference Jacobians made, stats[11]: the iteration at which the last Jacobian was made (-1: none)."""
     n = z.shape[0]
     n_res = 0
     n_jac = 0
     jac_iter = -1  # -1: inherited factorisation
+    stats[10] = 0.0
+    stats[11] = -1.0
+    first_ready = False
+    pending = fd_on and fd_now and have_factor  # the scheduled refresh, after the first update
+    if fd_on and not have_factor:
+        m = _k_band_jacobian_fd(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx,
+                                bpos, kl, ku, scale, color, ncolor, xi, r_1, dr, D, M, V, e1, e2, rb, zp, rp, ab)
+        n_res += abs(m)
+        have_factor = m > 0 and _k_band_lu(ab, kl, ku, ipiv) == 0
+        if have_factor:
+            stats[10] += 1.0
+            stats[11] = 0.0
+            jac_iter = 0
+            first_ready = True  # rb holds the residual at the predictor
     if not have_factor:
+        stats[11] = 0.0
         _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
         ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku,
                               cs, col, ab)
@@ -364,12 +452,15 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
     n_growing = 0
     polished = 0
     while it < max_iter + polished:
-        ok = _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
-                         xi, r_1, dr, D, M, V, e1, e2, rb)
-        n_res += 1
-        if not ok:
-            _k_stats(stats, 0, it, n_res, n_jac, np.inf, 1, 1)
-            return
+        if first_ready:
+            first_ready = False
+        else:
+            ok = _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx,
+                             bpos, xi, r_1, dr, D, M, V, e1, e2, rb)
+            n_res += 1
+            if not ok:
+                _k_stats(stats, 0, it, n_res, n_jac, np.inf, 1, 1)
+                return
         _k_band_solve(ab, kl, ku, ipiv, rb)
         err = 0.0
         zmax = 0.0
@@ -423,20 +514,43 @@ def _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam
                     _k_stats(stats, 0, it, n_res, n_jac, err, 1, 2)
                     return
                 if jac_iter < it:
+                    jac_iter = it
+                    err_prev = -1.0
+                    rate_prev = np.nan
+                    stats[11] = it
+                    if fd_on:
+                        m = _k_band_jacobian_fd(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n,
+                                                r_n, pin, z, idx, bpos, kl, ku, scale, color, ncolor, xi, r_1, dr, D, M,
+                                                V, e1, e2, rb, zp, rp, ab)
+                        n_res += abs(m)
+                        if m > 0 and _k_band_lu(ab, kl, ku, ipiv) == 0:
+                            stats[10] += 1.0
+                            first_ready = True  # rb holds the residual at z
+                            continue
                     _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
                     ok = _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos,
                                           kl, ku, cs, col, ab)
                     n_jac += 1
-                    jac_iter = it
-                    err_prev = -1.0
-                    rate_prev = np.nan
                     if not ok or _k_band_lu(ab, kl, ku, ipiv) != 0:
                         _k_stats(stats, 0, it, n_res, n_jac, err, 0, 4)
                         return
                     continue
             rate_prev = rate
         err_prev = err
-    _k_stats(stats, 0, it, n_res, n_jac, err, 1, 3)
+        if pending:  # the scheduled refresh at z_1: a better point than the predictor where J depends on z
+            pending = False
+            m = _k_band_jacobian_fd(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z,
+                                    idx, bpos, kl, ku, scale, color, ncolor, xi, r_1, dr, D, M, V, e1, e2, rb, zp, rp, ab)
+            n_res += abs(m)
+            if m < 0 or _k_band_lu(ab, kl, ku, ipiv) != 0:
+                _k_stats(stats, 0, it, n_res, n_jac, err, 0, 4)
+                return
+            stats[10] += 1.0
+            stats[11] = 0.0
+            jac_iter = it
+            err_prev = -1.0
+            rate_prev = np.nan
+            first_ready = True  # rb holds the residual at z
 
 
 @njit(cache=True, error_model="numpy")
@@ -722,20 +836,22 @@ def _k_rigid_polish(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, p
 
 
 @njit(cache=True, error_model="numpy")
-def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, p, v, vprev, q1, p1, v1, wz, wn, wd, rM, rV,
-                 re, cM, cV, ce, col, ab, ipiv, G, stats):
+def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, color, Lam_n, r_n, origin, p, v, vprev, q1, p1, v1, wz, wn, wd,
+                 rM, rV, re, cM, cV, ce, col, ab, ipiv, G, stats):
     """One whole step, one call (few array arguments: a numba call costs per argument).
 
     cf = [h, ds, rhoA, tol, rate_refresh, floor_est]; cv rows = inertia, J, K, g, tip force, tip torque, period;
     ci = [paper, periodic, floating, kl, ku, max_iter, polish, have_factor, linear predictor, steps to recalibrate,
-    rigid polish].  Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev; then _k_step, then (a free
-    rod, ci[10]) _k_rigid_polish and _k_finish when it converged.  cf[5] and ci[7], ci[9] are updated in place;
-    G (6, 7): the rigid polish's system."""
+    rigid polish, finite-difference Jacobians on, colours]; cf[6:9] = the refresh rule's excess iterations, the
+    fewest iterations of a step on the current factorisation (-1: none yet) and the refresh's cost in iterations
+    (docs/theory.md §9, "Jacobian refresh").  Predictor: z = v (the last step's b, xi on the mask) or 2 v - v_prev;
+    then _k_step, then (a free rod, ci[10]) _k_rigid_polish and _k_finish when it converged.  cf[5:8] and ci[7], ci[9]
+    are updated in place; G (6, 7): the rigid polish's system."""
     n1 = Lam_n.shape[0]
     h, ds, rhoA, tol, rate_refresh = cf[0], cf[1], cf[2], cf[3], cf[4]
     inertia, Jd, Kd, g, force, torque, period = cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6]
     paper, periodic, floating = ci[0] != 0, ci[1] != 0, ci[2] != 0
-    z, dz, rb = wz[0], wz[1], wz[2]
+    z, dz, rb, zp, rp = wz[0], wz[1], wz[2], wz[3], wz[4]
     xi, r_1, dr = wn[0], wn[1], wn[2]
     D, pin = wd[0], wd[1]
     for k in range(z.shape[0]):
@@ -747,10 +863,24 @@ def _k_full_step(cf, cv, ci, idx, cmask, bpos, vsel, scale, Lam_n, r_n, origin, 
     floor_est = cf[5] if ci[9] > 0 else -1.0
     cs = (cM[0:5], cV[0:16], ce[0], ce[1], cM[5], cM[6], cV[16], cV[17], cV[18], cV[19], cV[20], cV[21])
     M, V, e1, e2 = rM[0:5], rV, re[0], re[1]
+    # the refresh rule (docs/theory.md §9, "Jacobian refresh"): a finite-difference Jacobian once the iterations the
+    # steps have spent beyond the first step on the current factorisation add up to the refresh's cost
+    fd_now = ci[11] != 0 and ci[7] != 0 and cf[8] > 0.0 and cf[6] >= cf[8]
     _k_step(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, idx, cmask, bpos, ci[3],
             ci[4], scale, tol, ci[5], rate_refresh, ci[6], floor_est, z, dz, rb, xi, r_1, dr, D, M, V, e1, e2, cs, col, ab,
-            ipiv, ci[7] != 0, stats)
+            ipiv, ci[7] != 0, ci[11] != 0, fd_now, color, ci[12], zp, rp, stats)
     ci[7] = 1 if stats[5] != 0.0 else 0
+    if stats[11] == 0.0:  # a Jacobian at the predictor: this step's count is the new factorisation's base
+        cf[6] = 0.0
+        cf[7] = stats[1]
+    elif stats[11] > 0.0:  # a Jacobian within the step: the next step's count is the base
+        cf[6] = 0.0
+        cf[7] = -1.0
+    else:  # the base is the fewest iterations a step has taken on this factorisation (the first step from rest, or
+        # after a jump, can take more than the later ones)
+        if cf[7] < 0.0 or stats[1] < cf[7]:
+            cf[7] = stats[1]
+        cf[6] += stats[1] - cf[7]
     if stats[7] > 0.0:  # a measured round-off floor: recalibrate every 64 steps
         cf[5] = stats[7]
         ci[9] = 64
@@ -774,10 +904,13 @@ class FastRodStep:
     predicted from the contraction rate is below the round-off floor measured on an earlier step (``_k_step``);
     False polishes every step exactly as the stepper does.  ``rate_refresh``: the contraction rate above which the
     Jacobian is refreshed (``RATE_REFRESH_FAST``; the stepper's ``RATE_REFRESH_ROD`` repeats its choices).
+    ``fd_refresh``: also refresh the factorisation with the coloured finite-difference Jacobian at a step's predictor
+    once the iterations spent beyond the first step on the current one add up to ``refresh_cost`` iterations (default:
+    the refresh's own cost, from LU_SOLVE_COST; docs/theory.md §9, "Jacobian refresh"); False: the rate rule alone.
     """
 
     def __init__(self, model, h=None, tol=None, max_iter=None, predictor="constant", early_stop=True,
-                 rate_refresh=RATE_REFRESH_FAST):
+                 rate_refresh=RATE_REFRESH_FAST, fd_refresh=True, refresh_cost=None):
         why = supports(model)
         if why is not None:
             raise SolverError(f"rod step: the fast path does not run this model ({why})")
@@ -829,13 +962,33 @@ class FastRodStep:
         vidx[:, :3] = 3 * np.arange(n1)[:, None] + np.arange(3)
         vidx[:, 3:] = 3 * n1 + 3 * np.arange(n1)[:, None] + np.arange(3)
         self.vsel = np.ascontiguousarray(vidx[rod.mask])
+        # the finite-difference Jacobian's colours: nodes within two places of each other (around a period) differ.
+        # 0, 1, 2, 0, 1, 2, ...; a period of N = 3a + 4b nodes: b blocks 0, 1, 2, 3 and a blocks 0, 1, 2 (4 colours)
+        nn = N if rod.periodic else n1
+        color = np.zeros(n1, np.int64)
+        if rod.periodic and nn % 3 != 0:
+            b4 = 1 if nn % 3 == 1 else 2
+            if nn >= 4 * b4:
+                color[:nn] = [0, 1, 2, 3] * b4 + [0, 1, 2] * ((nn - 4 * b4) // 3)
+            else:  # N = 2 or 5: every node its own colour
+                color[:nn] = np.arange(nn)
+        else:
+            color[:nn] = np.arange(nn) % 3
+        self.color = color
+        ncolor = int(color[:nn].max()) + 1
+        d = int(rod.mask[0].sum()) if rod.periodic else int(rod.mask.sum(axis=1).max())
+        if refresh_cost is None:
+            lu, solve = LU_SOLVE_COST.get(d, LU_SOLVE_COST[6])
+            refresh_cost = (ncolor * d + lu) / (1.0 + solve)
+        self.refresh_cost = float(refresh_cost)
         # constants and preallocated buffers (reused by every step and every iteration)
-        self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, float(rate_refresh), -1.0])
+        self.cf = np.array([self.h, rod.ds, float(rhoA), self.tol, float(rate_refresh), -1.0, 0.0, -1.0,
+                            self.refresh_cost])
         self.cv = np.ascontiguousarray(np.stack([inertia, J, K, g, force, torque, rod.period]), dtype=float)
         # the rigid polish of the solution (docs/theory.md §9, "Momenta to round-off"): a free rod with open ends
         self.ci = np.array([rod.paper_measure, rod.periodic, rod.free, self.kl, self.ku, self.max_iter, POLISH_ROD, 0,
-                            0, 0, rod.free and not rod.periodic], dtype=np.int64)
-        self.wz = np.zeros((3, nz))
+                            0, 0, rod.free and not rod.periodic, bool(fd_refresh), ncolor], dtype=np.int64)
+        self.wz = np.zeros((5, nz))  # z, dz, the residual; the finite-difference Jacobian's z and residual
         self.wn = np.zeros((3, n1, 3))  # xi, r_1, dr
         self.wd = np.zeros((2, n1, 6))
         self.rM = np.zeros((6, 3, 3))
@@ -848,13 +1001,14 @@ class FastRodStep:
         self.col = np.zeros(24)
         self.ab = np.zeros((nz, 2 * self.kl + self.ku + 1))
         self.ipiv = np.zeros(nz, np.int64)
-        self.stats = np.zeros(10)
+        self.stats = np.zeros(12)
         self.G = np.zeros((6, 7))
         self._prev = None  # (n, v) of the state before, for the linear predictor
         self._step = None  # varint.stepper.Step for the fallback, built on first need
         self.fallbacks = 0
-        #: the last step's Newton counts, and whether it needed the stepper's damped Newton
-        self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0, "fallback": False}
+        #: the last step's Newton counts (n_jacobian: every Jacobian made, n_jacobian_fd: the finite-difference ones
+        #: among them), and whether it needed the stepper's damped Newton
+        self.last = {"iterations": 0, "n_residual": 0, "n_jacobian": 0, "n_jacobian_fd": 0, "fallback": False}
         self._has_data = model.state_data() is not None
 
     @property
@@ -939,6 +1093,27 @@ class FastRodStep:
                 A[ib, jb] = ab[jb, kv + ib - jb]
         return A[np.ix_(self.bpos, self.bpos)]
 
+    def jacobian_fd(self, q0, p0, z):
+        """The coloured finite-difference band Jacobian at z (``_k_band_jacobian_fd``) as a dense (nz, nz) array in z's
+        order; None if a residual is not finite."""
+        Lam, r, _ = self._level(q0)
+        z = np.ascontiguousarray(z, dtype=float)
+        h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic = self._consts()
+        ab = np.zeros_like(self.ab)
+        r0, zp, rp = np.zeros((3, self.nz))
+        m = _k_band_jacobian_fd(h, ds, rhoA, inertia, J, K, g, force, torque, paper, periodic, Lam, r, self._pin(p0), z,
+                                self.idx, self.bpos, self.kl, self.ku, self.scale, self.color, int(self.ci[12]),
+                                self.wn[0], self.wn[1], self.wn[2], self.wd[0], self.rM[:5], self.rV, self.re[0],
+                                self.re[1], r0, zp, rp, ab)
+        if m < 0:
+            return None
+        kv = self.kl + self.ku
+        A = np.zeros((self.nz, self.nz))
+        for jb in range(self.nz):
+            for ib in range(max(0, jb - self.ku), min(self.nz, jb + self.kl + 1)):
+                A[ib, jb] = ab[jb, kv + ib - jb]
+        return A[np.ix_(self.bpos, self.bpos)]
+
     # -- the step -------------------------------------------------------------------------------------------------
 
     def predict(self, state):
@@ -954,6 +1129,8 @@ class FastRodStep:
         self.ci[7] = 0
         self.ci[9] = 0
         self.cf[5] = -1.0
+        self.cf[6] = 0.0
+        self.cf[7] = -1.0
         self._prev = None
 
     def _fallback(self, state, z0):
@@ -991,10 +1168,10 @@ class FastRodStep:
         p1 = np.empty(6 * n1)
         v1 = np.empty(6 * n1)
         st = self.stats
-        _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, Lam, r, origin, p,
-                     v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
+        _k_full_step(self.cf, self.cv, self.ci, self.idx, self.cmask, self.bpos, self.vsel, self.scale, self.color, Lam, r,
+                     origin, p, v, vprev, q1, p1, v1, self.wz, self.wn, self.wd, self.rM, self.rV, self.re, self.cM, self.cV, self.ce,
                      self.col, self.ab, self.ipiv, self.G, st)
-        iters, nres, njac = int(st[1]), int(st[2]), int(st[3])
+        iters, nres, njac = int(st[1]), int(st[2]), int(st[3]) + int(st[10])  # every Jacobian, exact or differenced
         fell_back = not st[0]
         if fell_back:
             z0 = 2.0 * v[self.vsel] - vprev[self.vsel] if linear else v[self.vsel]
@@ -1022,6 +1199,7 @@ class FastRodStep:
                               "step (more than 90); reduce time.step", step=n_new, time=n_new * self.h)
         if self.predictor == "linear":
             self._prev = (state.n, v.copy())
-        self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac, "fallback": fell_back}
+        self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac, "n_jacobian_fd": int(st[10]),
+                     "fallback": fell_back}
         return State(n_new, n_new * self.h, q1, p1, np.zeros(0), v1, state.q.copy(),
                      m.state_data() if self._has_data else None)
