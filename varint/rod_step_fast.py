@@ -20,8 +20,9 @@ gradient), but
   steps), refreshed within a step by the stepper's rule (contraction rate above ``RATE_REFRESH_FAST``) and between
   steps once the iterations spent beyond the fewest on the current factorisation add up to the refresh's own cost
   (docs/theory.md §9, "Jacobian refresh");
-* the predictor extrapolates the last two steps' (b, xi) linearly (second order; the stepper's is the last step's,
-  first order), and the iteration stops, as the stepper's, at the round-off floor (``POLISH_ROD`` polishing updates
+* the predictor is the stepper's, the last step's (b, xi) (a linear extrapolation of the last two is an option and
+  did not reduce the iterations: docs/theory.md §9, "Predictor"), and the iteration stops, as the stepper's, at the
+  round-off floor (``POLISH_ROD`` polishing updates
   past ``newton_tol`` while they still contract);
 * the momenta are kept to their own round-off (docs/theory.md §9, "Momenta to round-off"): each element is evaluated
   in coordinates centred on its node a at level n, with the velocities from the increments Lambda_n b rather than
