@@ -30,7 +30,8 @@ WALL = {"law": "linear", "thickness": 1.0e-3, "density": 1200.0, "youngs_modulus
 
 
 def coupled_scene(nodes=7, parcels=8, fluid=GAS, wall=None, ends=("free", "free"), initial=None, gravity=None,
-                  dimension=3, h=1e-3, end=1.0, velocity=0.0, radius=0.02, section=None, length=1.0, scheme="midpoint"):
+                  dimension=3, h=1e-3, end=1.0, velocity=0.0, radius=0.02, section=None, length=1.0, scheme="midpoint",
+                  p_ext=None):
     rod = dict(section or SECTION, dimension=dimension, ends={"s0": ends[0], "sL": ends[1]})
     if initial:
         rod["initial"] = initial
@@ -42,6 +43,8 @@ def coupled_scene(nodes=7, parcels=8, fluid=GAS, wall=None, ends=("free", "free"
         d["wall"] = dict(WALL, **wall)
     if gravity is not None:
         d["environment"] = {"gravity": gravity}
+    if p_ext is not None:
+        d.setdefault("environment", {})["external_pressure"] = p_ext
     return build_model(parse_scene(to_toml(d)))
 
 

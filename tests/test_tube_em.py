@@ -93,7 +93,9 @@ def _random_increment(st, rng, amp=1.0):
 
 CASES = {"gas-rigid": dict(fluid=GAS, wall=None), "gas-dynamic": dict(fluid=GAS),
          "barotropic-tube-law": dict(fluid=BARO, law="tube-law"), "liquid-dynamic": dict(fluid=LIQUID),
-         "gas-constrained": dict(fluid=GAS, initial={"curvature": [0.0, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]})}
+         "gas-constrained": dict(fluid=GAS, initial={"curvature": [0.0, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]}),
+         # 1 bar inside, none outside, labels on the nodes (a label exactly on a node belongs to one element)
+         "gas-pressurised-on-nodes": dict(fluid=GAS, p_ext=0.0, parcels=6)}
 
 
 def _case_model(name, **kw):
@@ -228,7 +230,8 @@ def test_the_sparse_jacobian_is_the_dense_one_and_a_wrong_pattern_is_caught(flui
 # -- stepping -------------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("case", ["gas-dynamic", "liquid-dynamic", "barotropic-tube-law", "gas-constrained"])
+@pytest.mark.parametrize("case", ["gas-dynamic", "liquid-dynamic", "barotropic-tube-law", "gas-constrained",
+                                  "gas-pressurised-on-nodes"])
 def test_a_free_spinning_tube_conserves_energy_and_momenta(case):
     st = TubeEMStep(_case_model(case, h=2e-3), 2e-3)
     E0, P0, J0 = st.energy(), st.linear_momentum(), st.angular_momentum()
@@ -237,7 +240,8 @@ def test_a_free_spinning_tube_conserves_energy_and_momenta(case):
     for _ in range(60):
         st.step()
         m = st.monitors()
-        assert abs(m["energy"] - E0) < 1e-11 * abs(E0) + 1e-10 * K0
+        # measured 2.8e-14 - 7.6e-13 of K0 (E0 itself is mostly the gas's internal energy: its rounding counts too)
+        assert abs(m["energy"] - E0) < 1e-11 * K0 + 1e-14 * abs(E0)
         assert np.abs(m["linear_momentum"] - P0).max() < 1e-13 * sJ
         assert np.abs(m["angular_momentum"] - J0).max() < 1e-13 * sJ
         assert m["frame_orthogonality"] < 1e-12 and m["label_constraint"] < 1e-13
@@ -257,7 +261,7 @@ def test_gravity_changes_the_momentum_by_exactly_h_mtot_g_and_keeps_the_energy()
         assert np.allclose(P1 - P, st.h * Mtot * g, rtol=0, atol=1e-13 * np.linalg.norm(Mtot * g))
         P = P1
     assert abs(st.angular_momentum() @ g - Jg) < 1e-12 * abs(Jg) + 1e-13
-    assert abs(st.energy() - E0) < 1e-12 * abs(E0)
+    assert abs(st.energy() - E0) < 1e-11 * st.kinetic_energy() + 1e-14 * abs(E0)
 
 
 def test_order_two_against_the_midpoint_solution_of_the_same_model():

@@ -157,8 +157,9 @@ class RodEMStep:
         self.m, self.E = director_masses(rod)
         self.r = rod.r0.copy()
         self.D = rod.Lam0.copy()
-        self.v = rod.v0.copy()
-        W = rod.omega0  # body angular velocity: d_i' = Lambda (W x e_i)
+        # a held node neither moves nor turns, whatever rod.initial says (as the midpoint's initial momenta)
+        self.v = rod.v0 * rod.mask[:, :3]
+        W = rod.omega0 * rod.mask[:, 3:]  # body angular velocity: d_i' = Lambda (W x e_i)
         self.V = np.einsum("nij,njk->nik", self.D, _hat(W) @ np.eye(3))
         self.lam = np.zeros((self.N + 1, 6))
         self.mu = np.zeros((self.N + 1, NC))  # node N's entry is no element's: held at zero

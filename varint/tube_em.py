@@ -121,14 +121,18 @@ def _clip01(t):
     return np.where(re < 0.0, 0.0, np.where(re > 1.0, 1.0, t))
 
 
-def _moment_dd(t0, t1):
+def _moment_dd(t0, t1, last):
     """(M_q(clip t1) - M_q(clip t0))/(t1 - t0) for q = 0..3 (last axis), exact and cancellation-free: the polynomial
-    divided difference between the clipped ends times the fraction of [t0, t1] inside [0, 1]."""
+    divided difference between the clipped ends times the fraction of [t0, t1] inside [0, 1].  Where the two levels'
+    coordinates are equal (real parts; a complex step only adds an imaginary part) it is the derivative on the element
+    that owns the point: [0, 1) as ``_element_of``'s floor, [0, 1] on the ``last`` element — a label exactly on a node
+    must not count on both of its elements."""
     c0, c1 = _clip01(t0), _clip01(t1)
     dt = t1 - t0
-    same = dt == 0
-    frac = np.where(same, np.where((np.real(t0) >= 0) & (np.real(t0) <= 1), 1.0, 0.0),
-                    (c1 - c0) / np.where(same, 1.0, dt))
+    same = np.real(dt) == 0
+    re = np.real(t0)
+    owns = (re >= 0) & ((re < 1) | (last & (re <= 1)))
+    frac = np.where(same, np.where(owns, 1.0, 0.0), (c1 - c0) / np.where(same, 1.0, dt))
     dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), _MQ)
     return dd * frac[..., None]
 
@@ -279,7 +283,8 @@ class TubeEMStep:
         self.m[0] += mbar[0]  # the end labels sit on the end nodes: X_0 = r_0, X_M = r_N (Catmull-Rom interpolates)
         self.m[-1] += mbar[-1]
         self.r, self.D, self.v = rod.r0.copy(), rod.Lam0.copy(), rod.v0 * rod.mask[:, :3]
-        self.V = np.einsum("nij,njk->nik", self.D, _hat(rod.omega0) @ np.eye(3))
+        # a held node neither moves nor turns, whatever rod.initial says (as the midpoint's Legendre map)
+        self.V = np.einsum("nij,njk->nik", self.D, _hat(rod.omega0 * rod.mask[:, 3:]) @ np.eye(3))
         self.lam = np.zeros((n1, 6))
         self.mu_rod = np.zeros((self.N, 3))
         if self.constrained:
@@ -331,7 +336,8 @@ class TubeEMStep:
             V_init = self.volumes(self.s, self.R, self.r, self.D)
             miss = float(np.max(np.abs(V_init / self.V0 - 1.0)))
             if miss > 1e-6:
-                raise SolverError(f"fluid: the initial parcels miss their reference volumes m/rho by {miss:.1e} (relative)")
+                raise SolverError(f"fluid: the parcels' volumes in the initial shape (rod.initial) differ from their reference volumes "
+                                  f"m/rho by {miss:.1e} (relative); the energy-momentum step needs them equal to 1e-6")
             self.V0 = V_init
 
     def _wall_rates(self, t):
@@ -534,8 +540,8 @@ class TubeEMStep:
         lvl = self._level0()
         if gam1 is None:
             _, _, gam1 = self.stretches(r1, D1)
-        s1_re = np.real(s1).reshape(-1, self.M + 1)[0]
-        pk, pe = self._pairs(np.minimum(self.s, s1_re), np.maximum(self.s, s1_re))
+        s1_re = np.real(s1).reshape(-1, self.M + 1)  # every row of a batch: the pairs cover them all
+        pk, pe = self._pairs(np.minimum(self.s, s1_re.min(0)), np.maximum(self.s, s1_re.max(0)))
         p0 = self._pairs0(lvl, pk, pe)
         V0 = p0["V0"]
         V1 = self._volumes_on(s1, R1, gam1, pk, pe)
@@ -556,7 +562,8 @@ class TubeEMStep:
         S0 = p0["S0"]
         S1 = _moments(th1) - _moments(tl1)
         Sb = 0.5 * (S0 + S1)
-        ddh, ddl = _moment_dd(th0, th1), _moment_dd(tl0, tl1)
+        last = pe == self.N - 1
+        ddh, ddl = _moment_dd(th0, th1, last), _moment_dd(tl0, tl1, last)
         # P_(ijl) = R_i R_j gamma_l on the pair's element (i, j, l in {0, 1}: its two nodes), q = i + j + l
         R0p, R1p = p0["R0p"], _ends(R1, pe)
         G0p, G1p = p0["G0p"], _ends(gam1, pe)
@@ -620,7 +627,6 @@ class TubeEMStep:
         h = self.h
         u, r1, D1, R1, s1, X1 = self._levels(z)
         lvl = self._level0()
-        self._frame_nodes = lvl["fr"]
         G1, a1, gam1 = self.stretches(r1, D1)
         fl = self.fluid_discrete_gradient(z, gam1)
         # the fluid reaches the rod through |Gamma_e|: a stress gG_e/ds along (Gamma^0 + Gamma^1)/(|Gamma^0| + |Gamma^1|)
@@ -837,10 +843,24 @@ class TubeEMStep:
         du = lu.solve(-R / rs) / cs
         return self._rotate(du) if self.body else du
 
+    def _outside(self, z):
+        """Why z's level lies outside the tube's domain (labels not increasing inside [0, L], a radius not positive), or
+        None."""
+        u = self.unpack(z)
+        s1 = self.s[1:-1] + u["ds"]
+        if np.any(np.diff(np.concatenate([[self.s[0]], s1, [self.s[-1]]])) <= 0):
+            return "leaves the labels' order or the tube (a parcel of zero or negative length)"
+        if np.any(self.R + u["dR"] <= 0):
+            return "has a radius <= 0"
+        return None
+
     def _solve(self, z, chord):
         sc, qm = self.scale, self.qmask
         last, fresh, stale = np.inf, False, 0
         for it in range(1, self.max_iter + 1):
+            why = self._outside(z)
+            if why:  # an iterate outside the tube's domain: its residual means nothing (and may be singular)
+                raise SolverError(f"step {self.n + 1}: Newton's iterate {why}; try a smaller time.step")
             R = self.residual(z)
             self.stats["residuals"] += 1
             if not np.all(np.isfinite(R)):
