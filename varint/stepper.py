@@ -77,9 +77,11 @@ class Step:
             if rod.periodic:
                 u[rod.N] = u[0]  # the image node moves with node 0
             pt.Lam_n, pt.r_n = Lam_n, r_n
-            # the increments, unrounded by |r| (docs/theory.md §10.6 "Momenta to round-off")
-            pt.dr = np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
-            pt.r_1 = r_n + pt.dr
+            # the increments, unrounded by |r| (docs/theory.md §10.6 "Momenta to round-off"); not with the paper's
+            # measure under gravity, whose weight rho A |Gammabar_e| g . rbar reads the absolute positions
+            dr = np.matmul(Lam_n, u[:, :3, None])[:, :, 0]
+            pt.dr = None if (rod.paper_measure and np.any(rod.g)) else dr
+            pt.r_1 = r_n + dr
             pt.xi = u[:, 3:]
             if rod.constrained:
                 lam_r = np.zeros((rod.N, 3))
@@ -557,7 +559,8 @@ class Simulation(OpenEndsStepping):
     def _polishes(self):
         """A free rod with open ends (a support or a period breaks the rigid motions; open tube ends let momentum in)."""
         rod = self.model.rod
-        return bool(self.rigid_polish and rod is not None and rod.free and not rod.periodic and not self.open)
+        return bool(self.rigid_polish and rod is not None and rod.free and not rod.periodic and not self.open
+                    and not (rod.paper_measure and np.any(rod.g)))  # (Step.point: no increments there)
 
     def step(self):
         if self._fast is not None:
