@@ -132,6 +132,82 @@ def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, mu=None):
     return Fr, FD
 
 
+def body_angular_velocity(D, V):
+    """W_j from the massive directors' velocities: Lambda^T d_i' = W x e_i for i = 2, 3 (d_1 carries no inertia,
+    E_1 = 0, so its velocity is not a dynamical quantity)."""
+    A = _T(D) @ V
+    return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+
+
+def rigid_correction(h, P, J, m, x, E, Db):
+    """(a, w) of the rigid correction that zeroes the momentum balances (P, J) of a step (docs/theory.md §12a, "Momenta
+    to round-off"): the 6x6 locked-inertia system [[M I, -S^], [S^, I_lock]] (a, w) = -(h/2) (P, J) for point masses
+    ``m`` at the midpoint positions ``x`` and directors ``Db`` (.., 3, 3) with masses ``E``; the caller moves each point
+    by a + w x x and each director by w x d."""
+    eye = np.eye(3)
+    S = (m[:, None] * x).sum(0)
+    Ilock = np.einsum("n,nk,nl->kl", m, x, x)
+    Ilock = eye * np.trace(Ilock) - Ilock
+    d = np.swapaxes(Db, 1, 2)  # d[n, i] = director i of node n
+    Id = np.einsum("ni,nik,nil->kl", E, d, d)
+    Ilock += eye * np.trace(Id) - Id
+    A = np.zeros((6, 6))
+    A[:3, :3] = m.sum() * eye
+    A[:3, 3:] = -_hat(S)
+    A[3:, :3] = _hat(S)
+    A[3:, 3:] = Ilock
+    aw = np.linalg.solve(A, -(0.5 * h) * np.concatenate([P, J]))
+    return aw[:3], aw[3:]
+
+
+def chord_newton(step, z, chord, residual, factor, update, size_of, domain_problem=None):
+    """Newton from z for an energy-momentum step (RodEMStep, varint.tube_em.TubeEMStep): chord iterations on the kept
+    factorisation ``step._lu`` (``factor(z)`` makes one; refreshed when the contraction is slower than
+    ``step.rate_refresh`` or after 20 chord iterations; a fresh one that does not contract ends the attempt), or full
+    Newton (``chord=False``: a fresh Jacobian every iteration; the update may grow before it converges).  Iterates to
+    the round-off floor: after the update ``size_of(dz)`` falls below ``step.tol`` it stops when the next update no
+    longer shrinks.  ``domain_problem(z)``: why an iterate cannot be evaluated, or None.  Returns (z, iterations)."""
+    last = np.inf
+    fresh = False
+    stale = 0  # chord iterations since the factorisation was made
+    n1 = step.n + 1
+    for it in range(1, step.max_iter + 1):
+        why = domain_problem(z) if domain_problem is not None else None
+        if why:  # an iterate outside the domain: its residual means nothing (and may be singular)
+            raise SolverError(f"step {n1}: Newton's iterate {why}; try a smaller time.step")
+        R = residual(z)
+        step.stats["residuals"] += 1
+        if not np.all(np.isfinite(R)):
+            raise SolverError(f"step {n1}: non-finite residual")
+        if step._lu is None or not chord:
+            step._lu = None
+            step._lu = factor(z)
+            fresh, stale = True, 0
+        stale += 1
+        dz = update(R)
+        size = size_of(dz)
+        if not np.isfinite(size):
+            raise SolverError(f"step {n1}: singular Newton matrix")
+        if size >= last and last < 1e3 * step.tol:
+            if last > step.tol and chord and not fresh:
+                step._lu = None  # a stale factorisation stalls above the tolerance: refresh it before calling it the floor
+                last = np.inf
+                continue
+            return z, it  # round-off floor reached: the update no longer shrinks
+        if size > last and fresh and chord:
+            raise SolverError(f"step {n1}: Newton diverges (update {last:.2e} -> {size:.2e})")
+        z = z + dz
+        if size < 1e-3 * step.tol:
+            return z, it
+        if chord and it > 1 and not fresh and last >= step.tol and (size > step.rate_refresh * last or stale >= 20):
+            step._lu = None  # slow contraction, or 20 chord iterations on one factorisation: refresh the Jacobian
+        fresh = False
+        last = size
+    if last < 1e3 * step.tol:
+        return z, step.max_iter
+    raise SolverError(f"step {n1}: Newton did not converge in {step.max_iter} iterations (update {last:.2e})")
+
+
 def director_masses(rod):
     """Node masses m_j and director masses E_ji = w_j (tr I / 2 - I_i) of the rod's lumped kinetic metric."""
     I = rod.section.inertia
@@ -299,10 +375,7 @@ class RodEMStep:
         return np.concatenate(parts, 1).ravel()
 
     def body_angular_velocity(self):
-        """W_j from the massive directors' velocities: Lambda^T d_i' = W x e_i for i = 2, 3 (d_1 carries no inertia,
-        E_1 = 0, so its velocity is not a dynamical quantity)."""
-        A = _T(self.D) @ self.V
-        return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+        return body_angular_velocity(self.D, self.V)
 
     def _predict_rigid(self):
         from .lie import cay
@@ -342,52 +415,20 @@ class RodEMStep:
         _k_rotate(self.D, x, self.nv, transpose, out)
         return out
 
+    def _factor(self, z):
+        """SuperLU of the body-frame Jacobian at z (a singular matrix: SolverError)."""
+        try:
+            lu = spla.splu(self.jacobian(z, body=True))
+        except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+            raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
+        self.stats["jacobians"] += 1
+        return lu
+
     def _solve(self, z, chord):
-        """Newton from z: chord iterations on the kept factorisation (refreshed when the contraction is slower
-        than 1/2; a fresh one that does not contract ends the attempt), or full Newton (``chord=False``: a fresh
-        Jacobian every iteration; the update may grow before it converges).  Iterates to the round-off floor: after the update falls below ``tol`` (relative:
-        positions to L, directors) it stops when the next update no longer shrinks."""
-        sc, qmask = self._update_scale, self._qmask
-        last = np.inf
-        fresh = False
-        stale = 0  # chord iterations since the factorisation was made
-        for it in range(1, self.max_iter + 1):
-            R = self.residual_compiled(z) if self.compiled else self.residual(z)
-            self.stats["residuals"] += 1
-            if not np.all(np.isfinite(R)):
-                raise SolverError(f"step {self.n + 1}: non-finite residual")
-            if self._lu is None or not chord:
-                try:
-                    self._lu = spla.splu(self.jacobian(z, body=True))
-                except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
-                    self._lu = None
-                    raise SolverError(f"step {self.n + 1}: singular Newton matrix ({exc})") from None
-                self.stats["jacobians"] += 1
-                fresh = True
-                stale = 0
-            stale += 1
-            dz = self._rotate(self._lu.solve(self._rotate(-R, transpose=True)))
-            size = float(np.max(np.abs(dz[qmask]) / sc))
-            if not np.isfinite(size):
-                raise SolverError(f"step {self.n + 1}: singular Newton matrix")
-            if size >= last and last < 1e3 * self.tol:
-                if last > self.tol and chord and not fresh:
-                    self._lu = None  # a stale factorisation stalls above the tolerance: refresh it before calling it the floor
-                    last = np.inf
-                    continue
-                return z, it  # round-off floor reached: the update no longer shrinks
-            if size > last and fresh and chord:
-                raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
-            z = z + dz
-            if size < 1e-3 * self.tol:
-                return z, it
-            if chord and it > 1 and not fresh and last >= self.tol and (size > self.rate_refresh * last or stale >= 20):
-                self._lu = None  # slow contraction, or 20 chord iterations on one factorisation: refresh the Jacobian
-            fresh = False
-            last = size
-        if last < 1e3 * self.tol:
-            return z, self.max_iter
-        raise SolverError(f"step {self.n + 1}: Newton did not converge in {self.max_iter} iterations (update {last:.2e})")
+        """:func:`chord_newton` with the compiled residual and the body-frame factorisation."""
+        return chord_newton(self, z, chord, self.residual_compiled if self.compiled else self.residual, self._factor,
+                            lambda R: self._rotate(self._lu.solve(self._rotate(-R, transpose=True))),
+                            lambda dz: float(np.max(np.abs(dz[self._qmask]) / self._update_scale)))
 
     def step(self):
         """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (a rigid
@@ -454,22 +495,8 @@ class RodEMStep:
         10^5 steps of the hard cases, with it by ~1e-14 (docs/theory.md §12a, "Momenta to round-off").  The
         correction is of the residual floor's size, so every other row stays at its floor."""
         P, J, rb, Db = self._momentum_residuals(z)
-        m, E = self.m, self.E
-        M = m.sum()
-        S = (m[:, None] * rb).sum(0)
-        eye = np.eye(3)
-        Ilock = np.einsum("n,nk,nl->kl", m, rb, rb)
-        Ilock = eye * np.trace(Ilock) - Ilock
-        d = np.swapaxes(Db, 1, 2)  # d[n, i] = director i of node n
-        Id = np.einsum("ni,nik,nil->kl", E, d, d)
-        Ilock += eye * np.trace(Id) - Id
-        A = np.zeros((6, 6))
-        A[:3, :3] = M * eye
-        A[:3, 3:] = -_hat(S)
-        A[3:, :3] = _hat(S)
-        A[3:, 3:] = Ilock
-        aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
-        a, w = aw[:3], aw[3:]
+        a, w = rigid_correction(self.h, P, J, self.m, rb, self.E, Db)
+        d = np.swapaxes(Db, 1, 2)
         z = z.copy()
         zz = z.reshape(self.N + 1, self.nv)
         zz[:, :3] += a + np.cross(w, rb)

@@ -1087,6 +1087,10 @@ class FastRodStep:
         cs = (self.cM[0:5], self.cV[0:16], self.ce[0], self.ce[1], self.cM[5], self.cM[6]) + tuple(self.cV[16:22])
         _k_band_jacobian(h, ds, rhoA, inertia, J, K, g, paper, Lam, r, self.wn[0], self.wn[1], self.cmask, self.idx,
                          self.bpos, self.kl, self.ku, cs, self.col, ab)
+        return self._band_to_dense(ab)
+
+    def _band_to_dense(self, ab):
+        """The band storage ``ab`` (band order) as a dense (nz, nz) array in z's order."""
         kv = self.kl + self.ku
         A = np.zeros((self.nz, self.nz))
         for jb in range(self.nz):
@@ -1108,12 +1112,7 @@ class FastRodStep:
                                 self.re[1], r0, zp, rp, ab)
         if m < 0:
             return None
-        kv = self.kl + self.ku
-        A = np.zeros((self.nz, self.nz))
-        for jb in range(self.nz):
-            for ib in range(max(0, jb - self.ku), min(self.nz, jb + self.kl + 1)):
-                A[ib, jb] = ab[jb, kv + ib - jb]
-        return A[np.ix_(self.bpos, self.bpos)]
+        return self._band_to_dense(ab)
 
     # -- the step -------------------------------------------------------------------------------------------------
 

@@ -47,7 +47,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
-from .rod_em import CHI, _PAIRS, _T, _hat, director_masses, discrete_gradient, potential, strains
+from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
+                     potential, rigid_correction, strains)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
@@ -855,41 +856,10 @@ class TubeEMStep:
         return None
 
     def _solve(self, z, chord):
+        """varint.rod_em.chord_newton with this step's residual, equilibrated factorisation and domain guard."""
         sc, qm = self.scale, self.qmask
-        last, fresh, stale = np.inf, False, 0
-        for it in range(1, self.max_iter + 1):
-            why = self._outside(z)
-            if why:  # an iterate outside the tube's domain: its residual means nothing (and may be singular)
-                raise SolverError(f"step {self.n + 1}: Newton's iterate {why}; try a smaller time.step")
-            R = self.residual(z)
-            self.stats["residuals"] += 1
-            if not np.all(np.isfinite(R)):
-                raise SolverError(f"step {self.n + 1}: non-finite residual")
-            if self._lu is None or not chord:
-                self._lu = self._factor(z)
-                fresh, stale = True, 0
-            stale += 1
-            dz = self._update(R)
-            size = float(np.max(np.abs(dz[qm]) / sc[qm]))
-            if not np.isfinite(size):
-                raise SolverError(f"step {self.n + 1}: singular Newton matrix")
-            if size >= last and last < 1e3 * self.tol:
-                if last > self.tol and chord and not fresh:
-                    self._lu, last = None, np.inf
-                    continue
-                return z, it
-            if size > last and fresh and chord:
-                raise SolverError(f"step {self.n + 1}: Newton diverges (update {last:.2e} -> {size:.2e})")
-            z = z + dz
-            if size < 1e-3 * self.tol:
-                return z, it
-            if chord and it > 1 and not fresh and last >= self.tol and (size > self.rate_refresh * last or stale >= 20):
-                self._lu = None
-            fresh = False
-            last = size
-        if last < 1e3 * self.tol:
-            return z, self.max_iter
-        raise SolverError(f"step {self.n + 1}: Newton did not converge in {self.max_iter} iterations (update {last:.2e})")
+        return chord_newton(self, z, chord, self.residual, self._factor, self._update,
+                            lambda dz: float(np.max(np.abs(dz[qm]) / sc[qm])), self._outside)
 
     def _predict_rigid(self):
         from .lie import cay
@@ -926,22 +896,9 @@ class TubeEMStep:
         body frames the chord matrix is not the exact one in the rigid directions, so the momenta would keep that
         floor (~1e-14 |J|) instead of the momenta's round-off.  The correction is of the floor's size."""
         P, J, rb, Db, Xb = self._momentum_residuals(z)
-        m, mb = self.m, self.mbar
-        eye = np.eye(3)
-        Mt = m.sum() + mb.sum()
-        S = (m[:, None] * rb).sum(0) + (mb[:, None] * Xb).sum(0)
-        Il = np.einsum("n,nk,nl->kl", m, rb, rb) + np.einsum("n,nk,nl->kl", mb, Xb, Xb)
-        Il = eye * np.trace(Il) - Il
+        # the labels are point masses of their own (their X moves rigidly with the rod's nodes)
+        a, w = rigid_correction(self.h, P, J, np.concatenate([self.m, self.mbar]), np.concatenate([rb, Xb]), self.E, Db)
         d = np.swapaxes(Db, 1, 2)
-        Id = np.einsum("ni,nik,nil->kl", self.E, d, d)
-        Il += eye * np.trace(Id) - Id
-        A = np.zeros((6, 6))
-        A[:3, :3] = Mt * eye
-        A[:3, 3:] = -_hat(S)
-        A[3:, :3] = _hat(S)
-        A[3:, 3:] = Il
-        aw = np.linalg.solve(A, -(0.5 * self.h) * np.concatenate([P, J]))
-        a, w = aw[:3], aw[3:]
         z = z.copy()
         z[self.sl["dr"]] += (a + np.cross(w, rb)).ravel()
         z[self.sl["dD"]] += np.swapaxes(np.cross(w, d), 1, 2).reshape(-1)
@@ -949,8 +906,7 @@ class TubeEMStep:
         return z
 
     def body_angular_velocity(self):
-        A = _T(self.D) @ self.V
-        return np.stack([0.5 * (A[:, 2, 1] - A[:, 1, 2]), A[:, 0, 2], -A[:, 0, 1]], -1)
+        return body_angular_velocity(self.D, self.V)
 
     def step(self):
         """Advance one step; returns the Newton iterations.  Chord Newton from the predictor, full Newton on failure."""
