@@ -95,3 +95,19 @@ def tip_frequency(model, steps, scheme=None):
         sim.step()
         t[i], y[i] = sim.state.t, sim.fields()["rod/r"][-1, 1]
     return zero_crossing_frequency(t, y)
+
+
+def momentum_drift(sim, steps, every=1):
+    """Largest changes of a Simulation's momenta over ``steps`` steps (monitors every ``every`` steps):
+    (max |P - P0| L / |J0|, max |J - J0| / |J0|)."""
+    m0 = sim.monitors()
+    P0, J0 = m0["linear_momentum"], m0["angular_momentum"]
+    scale = np.linalg.norm(J0)
+    dP = dJ = 0.0
+    for n in range(steps):
+        sim.step()
+        if n % every == every - 1:
+            mo = sim.monitors()
+            dP = max(dP, np.abs(mo["linear_momentum"] - P0).max() * sim.model.L / scale)
+            dJ = max(dJ, np.abs(mo["angular_momentum"] - J0).max() / scale)
+    return dP, dJ

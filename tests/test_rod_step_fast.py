@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import momentum_drift
 from test_rod import SPIN, STIFF, TUMBLE, rod_scene, solid_section
 from varint import Simulation, build_model
 from varint.errors import SolverError
@@ -423,15 +424,6 @@ def test_momenta_of_the_hard_free_arc_stay_at_round_off():
         sim = Simulation(model)
         assert sim._fast is not None and sim._fast.ci[10] == 1  # the compiled step, polishing a free rod
         sim._fast.ci[10] = polish
-        m0 = sim.monitors()
-        P0, J0 = m0["linear_momentum"], m0["angular_momentum"]
-        scale = np.linalg.norm(J0)
-        dP = dJ = 0.0
-        for _ in range(1000):
-            sim.step()
-            mo = sim.monitors()
-            dP = max(dP, np.abs(mo["linear_momentum"] - P0).max() * model.rod.L / scale)
-            dJ = max(dJ, np.abs(mo["angular_momentum"] - J0).max() / scale)
-        out[polish] = (dP, dJ)
+        out[polish] = momentum_drift(sim, 1000)
     assert out[1][0] < 4e-14 and out[1][1] < 2e-14, out
     assert out[0][0] > 4e-14 or out[0][1] > 2e-14, out  # the test can fail: without the polish it does
