@@ -111,3 +111,22 @@ def momentum_drift(sim, steps, every=1):
             dP = max(dP, np.abs(mo["linear_momentum"] - P0).max() * sim.model.L / scale)
             dJ = max(dJ, np.abs(mo["angular_momentum"] - J0).max() / scale)
     return dP, dJ
+
+
+def fail_newton_at(step, sizes, calls=None):
+    """Make an energy-momentum step's Newton (``step._solve``) fail while the step size is one of ``sizes``: its first
+    ``calls`` attempts at each (the starts tried before varint.rod_em.halved_step), or every attempt (``calls=None``).
+    Attempts at other step sizes (the half steps) run as usual.  Returns the list of the sizes attempted."""
+    from varint.errors import SolverError
+
+    real, seen = step._solve, []
+    sizes = np.atleast_1d(sizes).tolist()
+
+    def solve(z, chord):
+        seen.append(step.h)
+        if step.h in sizes and (calls is None or seen.count(step.h) <= calls):
+            raise SolverError(f"step {step.n + 1}: induced failure")
+        return real(z, chord)
+
+    step._solve = solve
+    return seen

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import to_toml
+from helpers import fail_newton_at, to_toml
 from varint import Simulation, build_model, parse_scene
 from varint.errors import SceneError
 from varint.lie import cay
@@ -375,3 +375,29 @@ def test_supports_gravity_and_tip_force():
             assert np.max(np.abs(r[0] + o - m.rod.r0[0])) == 0.0 and np.max(np.abs(mo["kinetic_energy"])) > 0
     with pytest.raises(SceneError, match=r"time\.scheme: 'energy-momentum' does not cover a tip torque"):
         _scene(n=4, scheme="energy-momentum", load={"torque": [0.0, 0.0, 1.0]})
+
+
+@pytest.mark.parametrize("keep", ["newton-at-h", "half-steps"])
+def test_a_step_newton_fails_at_h_is_solved_from_two_half_steps(keep):
+    """varint.rod_em.halved_step for the rod alone (docs/theory.md §12c): the four starts at h fail (induced); Newton at
+    h from the level two half steps reach finds the unfailing step's solution, or, failing too, the two half steps
+    are the step (a step of h/2 taken twice).  Energy and momenta are conserved either way."""
+    h = 5e-3
+    model = _scene(n=8, h=h)
+    s = RodEMStep(model, h)
+    s.step()
+    before = s.state_data()
+    E0, P0, J0 = s.energy(), s.linear_momentum(), s.angular_momentum()
+    seen = fail_newton_at(s, h, calls=4 if keep == "newton-at-h" else None)
+    s.step()
+    assert s.last["fallback"] == 2 and s.stats["halvings"] == 1 and s.n == 2 and seen.count(h) == 5
+    ref = RodEMStep(model, h if keep == "newton-at-h" else h / 2)
+    ref.restore(before, 1)
+    if keep == "half-steps":
+        ref._prev = None
+        ref.step()
+    ref.step()
+    assert np.abs(s.r - ref.r).max() < 1e-12 and np.abs(s.D - ref.D).max() < 1e-11
+    assert abs(s.energy() / E0 - 1) < 1e-12
+    Js = np.linalg.norm(J0)
+    assert np.abs(s.linear_momentum() - P0).max() < 1e-13 * Js and np.abs(s.angular_momentum() - J0).max() < 1e-13 * Js

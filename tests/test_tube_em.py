@@ -18,11 +18,11 @@ import pytest
 
 from varint import Simulation, build_model, parse_scene
 from varint.coupled_geometry import centreline_weights, stretched_volumes
-from varint.errors import SceneError
+from varint.errors import SceneError, SolverError
 from varint.lie import cay
 from varint.tube_em import TubeEMStep, label_weights, label_weights_dd, scalar_dd
 
-from helpers import tip_frequency, to_toml
+from helpers import fail_newton_at, tip_frequency, to_toml
 from test_coupled_tube import GAS, LIQUID, BARO, SECTION, WALL, coupled_scene, liquid_cantilever
 
 SPIN = {"curvature": [0.3, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]}
@@ -353,3 +353,54 @@ def test_what_is_not_covered_is_refused_in_one_line(change, words):
     with pytest.raises(SceneError) as exc:
         build_model(parse_scene(_scene_text(**change)))
     assert any(line.startswith("time.scheme") and words in line for line in str(exc.value).splitlines()), str(exc.value)
+
+
+# -- a step Newton cannot solve at h (varint.rod_em.halved_step, docs/theory.md §12c) ----------------------------------
+
+
+@pytest.mark.parametrize("keep", ["newton-at-h", "half-steps"])
+def test_a_step_newton_fails_at_h_is_solved_from_two_half_steps(keep):
+    """Newton's three starts at h fail (induced): two steps of h/2 are taken from the level.  If Newton at h then
+    converges from the level they reach, its solution is the step, the one the unfailing step finds (the fixed-step
+    map is kept); if it fails too, the two half steps are the step, the same as a step of h/2 taken twice.  Energy and
+    momenta are conserved either way."""
+    h = 2e-3
+    model = _case_model("liquid-dynamic", h=h)
+    st = TubeEMStep(model, h)
+    st.step()
+    before = st.state_data()
+    E0, P0, J0, K0 = st.energy(), st.linear_momentum(), st.angular_momentum(), st.kinetic_energy()
+    seen = fail_newton_at(st, h, calls=3 if keep == "newton-at-h" else None)
+    st.step()
+    assert st.last["fallback"] == 2 and st.stats["halvings"] == 1 and st.n == 2
+    assert seen.count(h / 2) >= 2 and seen.count(h) == 4
+    ref = TubeEMStep(model, h if keep == "newton-at-h" else h / 2)
+    ref.restore(before, 1)
+    if keep == "half-steps":
+        ref._prev = None  # halved_step starts its half steps from a rigid motion
+        ref.step()
+        assert st.stats["halved_steps"] == 1
+    else:
+        assert "halved_steps" not in st.stats
+    ref.step()
+    assert np.abs(st.r - ref.r).max() < 1e-12 * model.L and np.abs(st.D - ref.D).max() < 1e-11
+    assert np.abs(st.s - ref.s).max() < 1e-12 * model.L and np.abs(st.v - ref.v).max() < 1e-9 * np.abs(ref.v).max()
+    sJ = np.linalg.norm(J0)
+    assert abs(st.energy() - E0) < 1e-11 * K0
+    assert np.abs(st.linear_momentum() - P0).max() < 1e-13 * sJ and np.abs(st.angular_momentum() - J0).max() < 1e-13 * sJ
+    # the next step, Newton no longer failing, is an ordinary one again
+    del st._solve
+    st.step()
+    assert st.last["fallback"] == 0 and st.n == 3
+
+
+def test_a_step_that_fails_at_every_halving_says_so_and_keeps_its_level():
+    h = 2e-3
+    st = TubeEMStep(_case_model("liquid-dynamic", h=h), h)
+    st.step()
+    r, s, n = st.r.copy(), st.s.copy(), st.n
+    seen = fail_newton_at(st, [h, h / 2, h / 4, h / 8])
+    with pytest.raises(SolverError, match=r"^step 2: induced failure; it fails with the step halved 3 times too$"):
+        st.step()
+    assert st.n == n and np.array_equal(st.r, r) and np.array_equal(st.s, s)
+    assert min(seen) == h / 8

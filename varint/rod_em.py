@@ -208,6 +208,58 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
     raise SolverError(f"step {n1}: Newton did not converge in {step.max_iter} iterations (update {last:.2e})")
 
 
+#: how often a step may be halved when Newton fails at its own step (h/2, h/4, h/8; docs/theory.md §12c)
+MAX_HALVINGS = 3
+
+
+def halved_step(step, exc):
+    """Newton failed at step ``step.h`` from every start (``exc`` its error): take the step as two steps of h/2 from
+    the same level (each with all of its own fallbacks, halved again up to :data:`MAX_HALVINGS` times), use the level
+    they reach as the start of full Newton at h, and keep Newton's solution if it converges; otherwise keep the two
+    half steps.  Either way energy and momenta are conserved as on any step (the identities of theory §12a hold at
+    every step size); the first keeps the fixed-step map, the second composes two steps of the same scheme
+    (docs/theory.md §12c: where Newton at h fails, why, and how often).
+
+    ``step`` is a :class:`RodEMStep` or :class:`varint.tube_em.TubeEMStep`: it has ``state_data``/``restore``,
+    ``_solve``, ``_guess_over(before)`` (the unknowns over h from the level in ``before`` to its current level) and
+    ``_advance(z, it)``.  Returns the iterations of the whole step; when even h/2**MAX_HALVINGS fails, the step is
+    back at its level and a SolverError with ``exc``'s message is raised."""
+    if step._halvings >= MAX_HALVINGS:
+        raise exc
+    n0, h, before = step.n, step.h, step.state_data()
+    it0 = step.stats["iterations"]
+    step._halvings += 1
+    step.h = 0.5 * h
+    step.restore(before, n0)
+    step._prev = None  # the half step's predictor: a rigid motion at the level's velocities
+    halves_ok = True
+    try:
+        step.step()
+        step.step()
+    except SolverError:
+        halves_ok = False
+    finally:
+        step.h = h
+        step._halvings -= 1
+    if not halves_ok:  # back to the level the step started from, and the step's own message
+        step.restore(before, n0)
+        if step._halvings == 0:
+            raise SolverError(f"{exc}; it fails with the step halved {MAX_HALVINGS} times too") from None
+        raise exc
+    step.stats["halvings"] = step.stats.get("halvings", 0) + 1
+    after, guess = step.state_data(), step._guess_over(before)
+    step.restore(before, n0)
+    try:
+        z, it = step._solve(guess, chord=False)
+    except SolverError:
+        step.stats["halved_steps"] = step.stats.get("halved_steps", 0) + 1
+        step.restore(after, n0 + 1)  # the two half steps are the step
+        step._prev = None
+        return step.stats["iterations"] - it0
+    step._advance(z, it)
+    return step.stats["iterations"] - it0
+
+
 def director_masses(rod):
     """Node masses m_j and director masses E_ji = w_j (tr I / 2 - I_i) of the rod's lumped kinetic metric."""
     I = rod.section.inertia
@@ -270,6 +322,7 @@ class RodEMStep:
         #: the compiled residual (``_k_residual``) for the iterations and the Jacobian; False: the numpy reference
         self.compiled = True
         self.stats = dict(iterations=0, jacobians=0, residuals=0)
+        self._halvings = 0  # depth of halved_step's recursion
 
     # -- the step's equations ---------------------------------------------------------------------------
 
@@ -431,10 +484,10 @@ class RodEMStep:
                             lambda dz: float(np.max(np.abs(dz[self._qmask]) / self._update_scale)))
 
     def step(self):
-        """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (a rigid
-        motion at the level's velocities); on failure full Newton from the same predictor."""
-        h = self.h
-        jac0 = self.stats["jacobians"]
+        """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (the last
+        increment); on failure full Newton from it, from a rigid motion at the level's velocities and from rest; if
+        all fail, :func:`halved_step` (two steps of h/2 as Newton's start, or as the step)."""
+        jac0, it0, n0 = self.stats["jacobians"], self.stats["iterations"], self.n
         fallback = 0
         try:
             z, it = self._solve(self._predict(), chord=True)
@@ -451,7 +504,19 @@ class RodEMStep:
                     exc = e
             else:
                 self._lu = None
-                raise exc
+                halved_step(self, exc)
+                fallback = 2
+                z = None
+        if z is not None:
+            self._advance(z, it)
+        self.n = n0 + 1
+        it = self.stats["iterations"] - it0
+        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
+        return it
+
+    def _advance(self, z, it):
+        """Take Newton's solution z as the step: the held unknowns, the rigid polish, the new level and velocities."""
+        h = self.h
         z[self.fixed] = 0.0  # held unknowns exactly at the level (Newton leaves them within round-off of it)
         if self.free:
             z = self._polish_rigid(z)
@@ -469,8 +534,13 @@ class RodEMStep:
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
         self.n += 1
         self.stats["iterations"] += it
-        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
-        return it
+
+    def _guess_over(self, before):
+        """The step's unknowns from the level in ``before`` (:meth:`state_data`) to the current one: increments and
+        the current multipliers (halved_step's start for Newton at h)."""
+        r0 = np.asarray(before["em_r"], dtype=float).reshape(self.r.shape)
+        D0 = np.asarray(before["em_D"], dtype=float).reshape(self.D.shape)
+        return self._pack(self.r - r0, self.D - D0, self.lam)
 
     def _momentum_residuals(self, z):
         """The step's linear and angular momentum balances (sum R_r, sum rbar x R_r + dbar_i x R_d_i) from their closed

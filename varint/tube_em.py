@@ -48,7 +48,7 @@ import scipy.sparse.linalg as spla
 
 from .errors import SolverError
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
-                     potential, rigid_correction, strains)
+                     halved_step, potential, rigid_correction, strains)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
@@ -331,6 +331,7 @@ class TubeEMStep:
         self._lvl = None
         self.last = dict(iterations=0, jacobians=0, fallback=0)
         self.stats = dict(iterations=0, jacobians=0, residuals=0)
+        self._halvings = 0  # depth of varint.rod_em.halved_step's recursion
         if self.incompressible:
             # the liquid holds each parcel's volume at t = 0 (a constraint that jumped on the first step would be work
             # done by the pressures); data whose shape and reference volumes m/rho disagree beyond 1e-6 are refused
@@ -909,9 +910,10 @@ class TubeEMStep:
         return body_angular_velocity(self.D, self.V)
 
     def step(self):
-        """Advance one step; returns the Newton iterations.  Chord Newton from the predictor, full Newton on failure."""
-        h = self.h
-        jac0 = self.stats["jacobians"]
+        """Advance one step; returns the Newton iterations.  Chord Newton from the predictor, full Newton on failure
+        (from the predictor, then from a rigid motion), then :func:`varint.rod_em.halved_step` (two steps of h/2 as
+        Newton's start at h, or as the step; docs/theory.md §12c)."""
+        jac0, it0, n0 = self.stats["jacobians"], self.stats["iterations"], self.n
         fallback = 0
         try:
             z, it = self._solve(self._predict(), chord=True)
@@ -926,7 +928,19 @@ class TubeEMStep:
                     exc = e
             else:
                 self._lu = None
-                raise exc
+                halved_step(self, exc)
+                fallback = 2
+                z = None
+        if z is not None:
+            self._advance(z, it)
+        self.n = n0 + 1
+        it = self.stats["iterations"] - it0
+        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
+        return it
+
+    def _advance(self, z, it):
+        """Take Newton's solution z as the step: held unknowns, the rigid polish, the new level and its velocities."""
+        h = self.h
         z[self.fixed] = 0.0
         if self.free:
             z = self._polish_rigid(z)
@@ -952,8 +966,14 @@ class TubeEMStep:
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
         self.n += 1
         self.stats["iterations"] += it
-        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
-        return it
+
+    def _guess_over(self, before):
+        """The step's unknowns from the level in ``before`` (:meth:`state_data`) to the current one: increments and
+        the current multipliers (varint.rod_em.halved_step's start for Newton at h)."""
+        old = {k: np.asarray(before[f"tem_{k}"], dtype=float).reshape(np.shape(getattr(self, k)))
+               for k in ("r", "D", "R", "s", "X")}
+        return self.pack(self.r - old["r"], self.D - old["D"], self.lam, self.R - old["R"], (self.s - old["s"])[1:-1],
+                         self.X - old["X"], self.nu)
 
     # -- the stepper's state ---------------------------------------------------------------------------------------
 
