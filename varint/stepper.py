@@ -571,7 +571,7 @@ class Simulation(OpenEndsStepping):
             s.iterations, s.n_jacobian = last["iterations"], last["jacobians"]
             s.total_iterations += last["iterations"]
             s.total_jacobians += last["jacobians"]
-            s.fallbacks += last["fallback"]
+            s.fallbacks += int(last["fallback"] > 0)  # 1: full Newton restarted; 2: solved from two half steps
             return self.state
         st = self.state
         m = self.model
