@@ -1,52 +1,95 @@
-"""A long run of the coupled tube's energy-momentum step (varint/tube_em.py, docs/theory.md §12b): the free spinning hose
-of examples/whirling_hose_energy_momentum.toml (water flowing at 1 m/s, dynamic wall, 12 elements, h = 10 ms, where
-the midpoint step stops within 35 steps), for --steps steps.  Every --every steps: the energy error relative to the
-initial kinetic energy, the momenta's changes relative to |J0|, the labels' constraint and the liquid's volume
-residual; at the end the maxima and whether the energy error grows (a least-squares slope of |dE| against time).
+"""A long run of the coupled tube's energy-momentum step (varint/tube_em.py, docs/theory.md §12b, §12c): the free
+spinning hose of examples/whirling_hose_energy_momentum.toml (water flowing at 1 m/s, dynamic wall, 12 elements,
+h = 10 ms, where the midpoint step stops within 35 steps), for --steps steps.  Every --every steps: the energy error
+relative to the initial kinetic energy, the momenta's changes relative to |J0|, the labels' constraint and the
+liquid's volume residual, the directors' share of the kinetic energy (the unresolved rotational modes, §12c) and the
+steps Newton could only solve through two half steps; at the end the maxima and whether the energy error grows (a
+least-squares slope of |dE| against time).
 
-Run: OPENBLAS_NUM_THREADS=1 python scripts/tube_em_long_run.py [--steps 20000] [--every 100]
+--nodes N runs the same hose on N nodes (N - 1 parcels).  --save FILE writes the step's state (and the reference
+E0, K0, P0, J0) to FILE (.npz) every --every steps; --resume FILE continues such a run where it stopped: a run of
+10^5 steps (~2.5 h at 12 elements on one core) can be made in pieces.
+
+Run: OPENBLAS_NUM_THREADS=1 python scripts/tube_em_long_run.py [--steps 20000] [--every 100] [--nodes 13]
+         [--save run.npz] [--resume run.npz]
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 
-from varint import build_model, load_scene
+from varint import build_model, load_scene, parse_scene
 from varint.tube_em import TubeEMStep
 
 SCENE = Path(__file__).resolve().parent.parent / "examples" / "whirling_hose_energy_momentum.toml"
 
 
+def hose(nodes):
+    text = SCENE.read_text()
+    if nodes != 13:
+        text = re.sub(r"(?m)^nodes = 13$", f"nodes = {nodes}", text)
+        text = re.sub(r"(?m)^parcels = 12$", f"parcels = {nodes - 1}", text)
+    return build_model(parse_scene(text) if nodes != 13 else load_scene(str(SCENE)))
+
+
+def director_share(st):
+    """The directors' kinetic energy 1/2 sum E_ji |d_ji'|^2 (the frames' rotary inertia) over the total kinetic energy."""
+    return 0.5 * float(np.sum(st.E[:, None, :] * st.V ** 2)) / st.kinetic_energy()
+
+
+def save(path, st, ref):
+    np.savez(path, n=st.n, **ref, **st.state_data())
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--steps", type=int, default=20000, help="the run's last step (a resumed run: counted from 0)")
     ap.add_argument("--every", type=int, default=100)
+    ap.add_argument("--nodes", type=int, default=13)
+    ap.add_argument("--save", default=None)
+    ap.add_argument("--resume", default=None)
     a = ap.parse_args()
-    model = build_model(load_scene(str(SCENE)))
+    model = hose(a.nodes)
     st = TubeEMStep(model, model.scene.time.step)
-    E0, K0, P0, J0 = st.energy(), st.kinetic_energy(), st.linear_momentum(), st.angular_momentum()
+    if a.resume:
+        data = dict(np.load(a.resume))
+        ref = {k: data.pop(k) for k in ("E0", "K0", "P0", "J0")}
+        st.restore(data, int(data.pop("n")))
+    else:
+        ref = dict(E0=st.energy(), K0=st.kinetic_energy(), P0=st.linear_momentum(), J0=st.angular_momentum())
+    E0, K0, P0, J0 = (ref[k] for k in ("E0", "K0", "P0", "J0"))
     sJ = np.linalg.norm(J0)
-    rows, t0 = [], time.perf_counter()
-    print("| step | t [s] | (E - E0)/K0 | max dP L/abs(J0) | max dJ/abs(J0) | label constraint | volume residual | wall s |")
-    print("|---|---|---|---|---|---|---|---|")
-    for n in range(1, a.steps + 1):
+    rows, t0, n_start = [], time.perf_counter(), st.n
+    print(f"# {a.nodes} nodes, h = {st.h:g} s, steps {n_start + 1}..{a.steps}")
+    print("| step | t [s] | (E - E0)/K0 | max dP L/abs(J0) | max dJ/abs(J0) | label constraint | volume residual | "
+          "directors' share of K | steps by halves | wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    while st.n < a.steps:
         st.step()
+        n = st.n
         if n % a.every == 0 or n == a.steps:
             m = st.monitors()
             row = (n, n * st.h, (m["energy"] - E0) / K0, float(np.abs(m["linear_momentum"] - P0).max()) * model.L / sJ,
-                   float(np.abs(m["angular_momentum"] - J0).max()) / sJ, m["label_constraint"], m.get("constraint_residual", 0.0),
+                   float(np.abs(m["angular_momentum"] - J0).max()) / sJ, m["label_constraint"],
+                   m.get("constraint_residual", 0.0), director_share(st), st.stats.get("halvings", 0),
                    time.perf_counter() - t0)
             rows.append(row)
-            print("| %d | %.1f | %.2e | %.1e | %.1e | %.1e | %.1e | %.0f |" % row, flush=True)
+            print("| %d | %.1f | %.2e | %.1e | %.1e | %.1e | %.1e | %.1e | %d | %.0f |" % row, flush=True)
+            if a.save:
+                save(a.save, st, ref)
     R = np.array(rows)
-    slope = np.polyfit(R[:, 1], np.abs(R[:, 2]), 1)[0]
+    slope = np.polyfit(R[:, 1], np.abs(R[:, 2]), 1)[0] if len(R) > 1 else float("nan")
+    steps = st.n - n_start
     print(f"\nmax abs(dE)/K0 {np.abs(R[:, 2]).max():.2e}, slope of abs(dE)/K0 per simulated second {slope:.1e}; "
-          f"max dP {R[:, 3].max():.1e}, dJ {R[:, 4].max():.1e}; {R[-1, 7] / a.steps * 1e3:.1f} ms/step "
-          f"({st.stats['iterations'] / a.steps:.1f} iterations, {st.stats['jacobians'] / a.steps:.2f} Jacobians per step)")
+          f"max dP {R[:, 3].max():.1e}, dJ {R[:, 4].max():.1e}; {R[-1, 9] / steps * 1e3:.1f} ms/step "
+          f"({st.stats['iterations'] / steps:.1f} iterations, {st.stats['jacobians'] / steps:.2f} Jacobians per step); "
+          f"steps solved through halves: {st.stats.get('halvings', 0)} (of which kept as two half steps: "
+          f"{st.stats.get('halved_steps', 0)})")
 
 
 if __name__ == "__main__":
