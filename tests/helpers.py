@@ -113,10 +113,11 @@ def momentum_drift(sim, steps, every=1):
     return dP, dJ
 
 
-def fail_newton_at(step, sizes, calls=None):
-    """Make an energy-momentum step's Newton (``step._solve``) fail while the step size is one of ``sizes``: its first
-    ``calls`` attempts at each (the starts tried before varint.rod_em.halved_step), or every attempt (``calls=None``).
-    Attempts at other step sizes (the half steps) run as usual.  Returns the list of the sizes attempted."""
+def fail_newton_at(step, sizes, calls=None, after=0):
+    """Make an energy-momentum step's Newton (``step._solve``) fail while the step size is one of ``sizes``: the
+    attempts at each size numbered after+1 .. calls (counted from 1; ``calls=None``: all from after+1 on).  With
+    after=0 and calls = the starts tried before varint.rod_em.halved_step, only those fail.  Attempts at other step
+    sizes run as usual.  Returns the list of the sizes attempted."""
     from varint.errors import SolverError
 
     real, seen = step._solve, []
@@ -124,7 +125,8 @@ def fail_newton_at(step, sizes, calls=None):
 
     def solve(z, chord):
         seen.append(step.h)
-        if step.h in sizes and (calls is None or seen.count(step.h) <= calls):
+        c = seen.count(step.h)
+        if step.h in sizes and c > after and (calls is None or c <= calls):
             raise SolverError(f"step {step.n + 1}: induced failure")
         return real(z, chord)
 

@@ -395,12 +395,25 @@ def test_a_step_newton_fails_at_h_is_solved_from_two_half_steps(keep):
 
 
 def test_a_step_that_fails_at_every_halving_says_so_and_keeps_its_level():
+    """Newton fails at h, and at h/2 from the second half step on, and at h/4 and h/8: the first half step has moved
+    the level when the second fails, so the step must put it back (and its step size and depth), name the step in one
+    line, and then step on as if nothing had happened."""
     h = 2e-3
-    st = TubeEMStep(_case_model("liquid-dynamic", h=h), h)
+    model = _case_model("liquid-dynamic", h=h)
+    st = TubeEMStep(model, h)
     st.step()
-    r, s, n = st.r.copy(), st.s.copy(), st.n
-    seen = fail_newton_at(st, [h, h / 2, h / 4, h / 8])
-    with pytest.raises(SolverError, match=r"^step 2: induced failure; it fails with the step halved 3 times too$"):
+    before = st.state_data()
+    seen = fail_newton_at(st, [h, h / 4, h / 8])
+    fail_newton_at(st, h / 2, after=1)  # the first half step's chord iteration succeeds
+    with pytest.raises(SolverError, match=r"^step 2: induced failure \(and with the step halved 3 times\)$"):
         st.step()
-    assert st.n == n and np.array_equal(st.r, r) and np.array_equal(st.s, s)
-    assert min(seen) == h / 8
+    assert h / 8 in seen and h / 2 in seen
+    assert st.n == 1 and st.h == h and st._halvings == 0 and "halvings" not in st.stats
+    for k, v in before.items():
+        assert np.array_equal(st.state_data()[k], v), k
+    del st._solve
+    ref = TubeEMStep(model, h)
+    ref.restore(before, 1)
+    st.step()
+    ref.step()
+    assert st.last["fallback"] == 0 and np.array_equal(st.r, ref.r) and np.array_equal(st.s, ref.s)

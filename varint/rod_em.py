@@ -212,6 +212,38 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
 MAX_HALVINGS = 3
 
 
+def em_step(step, starts):
+    """One step of an energy-momentum scheme (:meth:`RodEMStep.step`, :meth:`varint.tube_em.TubeEMStep.step`): chord
+    Newton from ``step._predict()``; on failure full Newton from each of ``starts`` in turn; if all fail,
+    :func:`halved_step`.  Sets ``step.last`` (iterations and Jacobians of the whole step; ``fallback`` 0: none, 1: a
+    full-Newton restart, 2: solved from two half steps) and returns the iterations."""
+    jac0, it0, n0 = step.stats["jacobians"], step.stats["iterations"], step.n
+    fallback, z = 0, None
+    try:
+        z, it = step._solve(step._predict(), chord=True)
+    except SolverError as exc:
+        if step._halvings == 0:  # the half steps' own fallbacks are not counted again
+            step.stats["fallbacks"] = step.stats.get("fallbacks", 0) + 1
+        fallback = 1
+        for start in starts:
+            step._lu = None
+            try:
+                z, it = step._solve(start(), chord=False)
+                break
+            except SolverError as e:
+                exc = e
+        if z is None:
+            step._lu = None
+            halved_step(step, exc)
+            fallback = 2
+    if z is not None:
+        step._advance(z, it)
+    step.n = n0 + 1
+    it = step.stats["iterations"] - it0
+    step.last = dict(iterations=it, jacobians=step.stats["jacobians"] - jac0, fallback=fallback)
+    return it
+
+
 def halved_step(step, exc):
     """Newton failed at step ``step.h`` from every start (``exc`` its error): take the step as two steps of h/2 from
     the same level (each with all of its own fallbacks, halved again up to :data:`MAX_HALVINGS` times), use the level
@@ -221,43 +253,51 @@ def halved_step(step, exc):
     (docs/theory.md §12c: where Newton at h fails, why, and how often).
 
     ``step`` is a :class:`RodEMStep` or :class:`varint.tube_em.TubeEMStep`: it has ``state_data``/``restore``,
-    ``_solve``, ``_guess_over(before)`` (the unknowns over h from the level in ``before`` to its current level) and
-    ``_advance(z, it)``.  Returns the iterations of the whole step; when even h/2**MAX_HALVINGS fails, the step is
-    back at its level and a SolverError with ``exc``'s message is raised."""
+    ``_solve``, ``_guess_over(before)`` (the unknowns over h from the level in ``before`` to its current level),
+    ``_prev_of(z)`` (the predictor's data for increments z) and ``_advance(z, it)``.  When even h/2**MAX_HALVINGS
+    fails (or anything else is raised) the step is back at its level; a failure raises a SolverError with ``exc``'s
+    message.  ``stats["halvings"]`` counts the steps solved this way, ``stats["halved_steps"]`` those kept as two
+    half steps (the outermost step only, however deep the halving went)."""
     if step._halvings >= MAX_HALVINGS:
         raise exc
     n0, h, before = step.n, step.h, step.state_data()
-    it0 = step.stats["iterations"]
     step._halvings += 1
     step.h = 0.5 * h
     step.restore(before, n0)
     step._prev = None  # the half step's predictor: a rigid motion at the level's velocities
-    halves_ok = True
     try:
         step.step()
         step.step()
     except SolverError:
         halves_ok = False
-    finally:
+    except BaseException:  # an interrupt or an unexpected error: back to the level before passing it on
         step.h = h
         step._halvings -= 1
+        step.restore(before, n0)
+        raise
+    else:
+        halves_ok = True
+    step.h = h
+    step._halvings -= 1
+    outermost = step._halvings == 0
     if not halves_ok:  # back to the level the step started from, and the step's own message
         step.restore(before, n0)
-        if step._halvings == 0:
-            raise SolverError(f"{exc}; it fails with the step halved {MAX_HALVINGS} times too") from None
+        if outermost:
+            raise SolverError(f"{exc} (and with the step halved {MAX_HALVINGS} times)") from None
         raise exc
-    step.stats["halvings"] = step.stats.get("halvings", 0) + 1
+    if outermost:
+        step.stats["halvings"] = step.stats.get("halvings", 0) + 1
     after, guess = step.state_data(), step._guess_over(before)
     step.restore(before, n0)
     try:
         z, it = step._solve(guess, chord=False)
     except SolverError:
-        step.stats["halved_steps"] = step.stats.get("halved_steps", 0) + 1
+        if outermost:
+            step.stats["halved_steps"] = step.stats.get("halved_steps", 0) + 1
         step.restore(after, n0 + 1)  # the two half steps are the step
-        step._prev = None
-        return step.stats["iterations"] - it0
+        step._prev = step._prev_of(guess)  # the next step's predictor: the increment over h (rigid motion is poor)
+        return
     step._advance(z, it)
-    return step.stats["iterations"] - it0
 
 
 def director_masses(rod):
@@ -484,35 +524,10 @@ class RodEMStep:
                             lambda dz: float(np.max(np.abs(dz[self._qmask]) / self._update_scale)))
 
     def step(self):
-        """Advance one step; returns the number of Newton iterations.  Chord Newton from the predictor (the last
-        increment); on failure full Newton from it, from a rigid motion at the level's velocities and from rest; if
-        all fail, :func:`halved_step` (two steps of h/2 as Newton's start, or as the step)."""
-        jac0, it0, n0 = self.stats["jacobians"], self.stats["iterations"], self.n
-        fallback = 0
-        try:
-            z, it = self._solve(self._predict(), chord=True)
-        except SolverError as exc:
-            # full Newton from the same predictor, then from a rigid motion at the level's velocities, then from rest
-            self.stats["fallbacks"] = self.stats.get("fallbacks", 0) + 1
-            fallback = 1
-            for start in (self._predict, self._predict_rigid, self._predict_rest):
-                self._lu = None
-                try:
-                    z, it = self._solve(start(), chord=False)
-                    break
-                except SolverError as e:
-                    exc = e
-            else:
-                self._lu = None
-                halved_step(self, exc)
-                fallback = 2
-                z = None
-        if z is not None:
-            self._advance(z, it)
-        self.n = n0 + 1
-        it = self.stats["iterations"] - it0
-        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
-        return it
+        """Advance one step; returns the number of Newton iterations (:func:`em_step`: chord Newton from the predictor,
+        the last increment; on failure full Newton from it, from a rigid motion at the level's velocities and from rest;
+        then :func:`halved_step`)."""
+        return em_step(self, (self._predict, self._predict_rigid, self._predict_rest))
 
     def _advance(self, z, it):
         """Take Newton's solution z as the step: the held unknowns, the rigid polish, the new level and velocities."""
@@ -541,6 +556,11 @@ class RodEMStep:
         r0 = np.asarray(before["em_r"], dtype=float).reshape(self.r.shape)
         D0 = np.asarray(before["em_D"], dtype=float).reshape(self.D.shape)
         return self._pack(self.r - r0, self.D - D0, self.lam)
+
+    def _prev_of(self, z):
+        """The predictor's data (the last increment and the level it started from) for the step's unknowns z."""
+        dr, dD, _ = self._unpack(z)
+        return dr.copy(), self.D - dD
 
     def _momentum_residuals(self, z):
         """The step's linear and angular momentum balances (sum R_r, sum rbar x R_r + dbar_i x R_d_i) from their closed

@@ -48,7 +48,7 @@ import scipy.sparse.linalg as spla
 
 from .errors import SolverError
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
-                     halved_step, potential, rigid_correction, strains)
+                     em_step, potential, rigid_correction, strains)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
@@ -910,33 +910,10 @@ class TubeEMStep:
         return body_angular_velocity(self.D, self.V)
 
     def step(self):
-        """Advance one step; returns the Newton iterations.  Chord Newton from the predictor, full Newton on failure
-        (from the predictor, then from a rigid motion), then :func:`varint.rod_em.halved_step` (two steps of h/2 as
-        Newton's start at h, or as the step; docs/theory.md §12c)."""
-        jac0, it0, n0 = self.stats["jacobians"], self.stats["iterations"], self.n
-        fallback = 0
-        try:
-            z, it = self._solve(self._predict(), chord=True)
-        except SolverError as exc:
-            fallback = 1
-            for start in (self._predict, self._predict_rigid):
-                self._lu = None
-                try:
-                    z, it = self._solve(start(), chord=False)
-                    break
-                except SolverError as e:
-                    exc = e
-            else:
-                self._lu = None
-                halved_step(self, exc)
-                fallback = 2
-                z = None
-        if z is not None:
-            self._advance(z, it)
-        self.n = n0 + 1
-        it = self.stats["iterations"] - it0
-        self.last = dict(iterations=it, jacobians=self.stats["jacobians"] - jac0, fallback=fallback)
-        return it
+        """Advance one step; returns the Newton iterations (:func:`varint.rod_em.em_step`: chord Newton from the
+        predictor, full Newton on failure from the predictor and from a rigid motion, then
+        :func:`varint.rod_em.halved_step`, docs/theory.md §12c)."""
+        return em_step(self, (self._predict, self._predict_rigid))
 
     def _advance(self, z, it):
         """Take Newton's solution z as the step: held unknowns, the rigid polish, the new level and its velocities."""
@@ -974,6 +951,11 @@ class TubeEMStep:
                for k in ("r", "D", "R", "s", "X")}
         return self.pack(self.r - old["r"], self.D - old["D"], self.lam, self.R - old["R"], (self.s - old["s"])[1:-1],
                          self.X - old["X"], self.nu)
+
+    def _prev_of(self, z):
+        """The predictor's data (the last increments and the level's directors before them) for the unknowns z."""
+        u = self.unpack(z)
+        return u["dr"].copy(), self.D - u["dD"], u["dR"].copy(), u["ds"].copy(), u["dX"].copy()
 
     # -- the stepper's state ---------------------------------------------------------------------------------------
 
