@@ -149,7 +149,7 @@ def test_modes_count_must_be_positive(tmp_path, capsys, count):
     assert capsys.readouterr().out == ""
 
 
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_modes_of_a_loaded_rod_say_what_they_linearise_about(tmp_path, capsys):
     f = _cantilever(tmp_path)
     assert main(["modes", str(f), "-n", "3"]) == 0

@@ -103,7 +103,7 @@ def _coupled_and_constrained_final(kind, h, T):
 
 
 @pytest.mark.parametrize("kind", ["coupled", "constrained"])
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_coupled_tube_and_constrained_rod_are_second_order_in_time(kind):
     """The one stepper's order on the new models (docs/theory.md §9a, §10): the midpoint scheme declares 2."""
     # the gas's acoustic modes (2c/ds ~ 5400 rad/s) set the coupled case's resolved step

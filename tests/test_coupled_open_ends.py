@@ -124,7 +124,7 @@ def test_clamped_clamped_pipe_is_bounded_below_u_2pi_and_diverges_above():
 
 
 @pytest.mark.parametrize("frac", [0.93, 1.07])
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_cantilever_decays_below_its_flutter_threshold_and_grows_above(frac):
     """The cantilevered pipe (beta = 0.2) flutters above u_cr = 5.591 (pipe_stability, truth): a kicked run at
     0.93 u_cr decays, at 1.07 u_cr it grows, with the rate of flowing_modes within 6 % (measured: 0.781 against 0.799 /s,
@@ -144,7 +144,7 @@ def test_cantilever_decays_below_its_flutter_threshold_and_grows_above(frac):
     assert abs(mon["mass_balance"]) < 1e-12
 
 
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_the_fast_heavy_flow_of_beta_08_needs_two_parcels_per_element_and_then_grows_at_the_modes_rate():
     """beta = 0.8 at 1.07 u_cr (U = 16 m/s): with one parcel per element the liquid's nodal inertia pulses as the labels
     pass the nodes and a lateral lattice mode grows at ~100 /s (theory §12; Newton fails at t = 0.197 s); with two the

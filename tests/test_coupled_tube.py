@@ -287,7 +287,7 @@ def liquid_cantilever(N, h, R=0.01, L=1.0, rho_f=1000.0, scheme="midpoint"):
     return coupled, heavy, f_beam
 
 
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
     """docs/theory.md §10.7a, outside truth.  A clamped-free tube of water, labels on the nodes (M = N): to
     first order the labels stay at rest and the liquid adds rho_f A_f to rho A.  The coupled run's first

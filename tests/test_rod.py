@@ -448,7 +448,7 @@ def test_accumulate_kernel_equals_numpy_reference(dimension):
 
 @pytest.mark.validation
 @pytest.mark.parametrize("scheme", ["midpoint", "energy-momentum"])
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_cantilever_frequencies_from_a_time_domain_run(scheme):
     """Released from a mix of the first three modes: each modal coordinate oscillates at its Timoshenko frequency
     (outside truth for both time schemes: the midpoint and the energy-momentum step of docs/theory.md §12a)."""

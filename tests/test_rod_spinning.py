@@ -237,7 +237,7 @@ def test_steady_rotation_stretches_the_rod_as_the_centrifugal_tension_says():
     assert np.log2(errs[1] / errs[2]) == pytest.approx(2.0, abs=0.2), errs
 
 
-@pytest.mark.slow  # 0.5-1.7 min: the slow tier (pytest -m slow; CI runs it)
+@pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
 def test_spinning_free_rod_flap_and_lag_against_the_rotating_beam():
     """Modes about the steady rotation: out-of-plane (flap) frequencies stiffened by the centrifugal
     tension, against shooting on the rotating Euler-Bernoulli beam; in-plane (lag) ones obey
