@@ -47,6 +47,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
+from .rod import ORIGIN_GRID
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
                      em_step, potential, rigid_correction, strains)
 
@@ -324,6 +325,11 @@ class TubeEMStep:
             self.fix_r[node] |= kind in ("pinned", "clamped")
             self.fix_D[node] |= kind == "clamped"
         self.free = not (self.fix_r.any() or self.fix_D.any())
+        # a free tube travels: its positions r, X are kept relative to a floating origin moved with node 0 after each
+        # step on varint.rod.ORIGIN_GRID (an exact subtraction), so that their rounding stays eps times the tube's
+        # size, not eps times its distance from where it started (theory §12c; the midpoint's Simulation.floating_origin)
+        self.floating_origin = self.free
+        self.origin = np.zeros(3)
         self._layout()
         self.n = 0
         self._lu = None
@@ -941,6 +947,9 @@ class TubeEMStep:
             self.mu_liq = u["mu_liq"].copy()
         W = self.body_angular_velocity()
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
+        if self.floating_origin:
+            shift = np.round(self.r[0] / ORIGIN_GRID) * ORIGIN_GRID
+            self.r, self.X, self.origin = self.r - shift, self.X - shift, self.origin + shift
         self.n += 1
         self.stats["iterations"] += it
 
@@ -949,8 +958,9 @@ class TubeEMStep:
         the current multipliers (varint.rod_em.halved_step's start for Newton at h)."""
         old = {k: np.asarray(before[f"tem_{k}"], dtype=float).reshape(np.shape(getattr(self, k)))
                for k in ("r", "D", "R", "s", "X")}
-        return self.pack(self.r - old["r"], self.D - old["D"], self.lam, self.R - old["R"], (self.s - old["s"])[1:-1],
-                         self.X - old["X"], self.nu)
+        moved = self.origin - np.asarray(before.get("tem_origin", np.zeros(3)), dtype=float)  # the origin's moves since
+        return self.pack(self.r + moved - old["r"], self.D - old["D"], self.lam, self.R - old["R"],
+                         (self.s - old["s"])[1:-1], self.X + moved - old["X"], self.nu)
 
     def _prev_of(self, z):
         """The predictor's data (the last increments and the level's directors before them) for the unknowns z."""
@@ -989,7 +999,7 @@ class TubeEMStep:
         rates[: self.M + 1] = mb * np.sum(Xdot * dX, 1)
         rates[self.M + 1: self.M + 1 + len(self.R)] = self.aw * self.Rdot
         p[model.tube_p] = (t.B.T @ rates)[:nq]
-        q[model.rod_q] = pack_level(self.D, self.r)
+        q[model.rod_q] = pack_level(self.D, self.r, self.origin)
         prod = self.m[:, None] * self.v
         inner = (mb[1:-1, None] * Nw[1:-1])[:, :, None] * self.Xdot[:, None, :]
         np.add.at(prod, nodes[1:-1].ravel(), inner.reshape(-1, 3))
@@ -1005,6 +1015,7 @@ class TubeEMStep:
 
     def state_data(self):
         data = {f"tem_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
+        data["tem_origin"] = self.origin.copy()
         if self._prev is not None:
             for k, v in zip(("dr", "D", "dR", "ds", "dX"), self._prev):
                 data[f"tem_prev_{k}"] = np.asarray(v, dtype=float).ravel()
@@ -1015,6 +1026,8 @@ class TubeEMStep:
         for k in self._STATE:
             cur = getattr(self, k)
             setattr(self, k, np.array(data[f"tem_{k}"], dtype=float).reshape(np.shape(cur)))
+        # a checkpoint written before the floating origin: its positions are absolute
+        self.origin = np.array(data.get("tem_origin", np.zeros(3)), dtype=float).reshape(3)
         self._prev = None
         if "tem_prev_dr" in data:
             shapes = (self.r.shape, self.D.shape, self.R.shape, (self.M - 1,), self.X.shape)
@@ -1031,12 +1044,21 @@ class TubeEMStep:
 
     def energy(self):
         """The conserved total energy: kinetic (constant metric) + U (rod, wall, fluid, p_ext, loads)."""
-        return self.kinetic_energy() + float(self.potential(self.r, self.D, self.R, self.s, self.X))
+        return self.kinetic_energy() + self._potential_level()
+
+    def _potential_level(self):
+        """U at the current level, with the loads' work on the floating origin's moves (U's terms linear in r, X)."""
+        loads = self.fext.sum(0) + self.mbar.sum() * self.g
+        return float(self.potential(self.r, self.D, self.R, self.s, self.X)) - float(loads @ self.origin)
 
     def linear_momentum(self):
         return (self.m[:, None] * self.v).sum(0) + (self.mbar[:, None] * self.Xdot).sum(0)
 
     def angular_momentum(self):
+        """About the fixed origin: the floating origin's o x P plus the moments about o."""
+        return np.cross(self.origin, self.linear_momentum()) + self._angular_momentum_local()
+
+    def _angular_momentum_local(self):
         return (np.cross(self.r, self.m[:, None] * self.v).sum(0)
                 + np.cross(np.swapaxes(self.D, 1, 2), np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum((0, 1))
                 + np.cross(self.X, self.mbar[:, None] * self.Xdot).sum(0))
@@ -1054,14 +1076,15 @@ class TubeEMStep:
         Kf = 0.5 * float(np.sum(self.mbar * np.sum(self.Xdot ** 2, 1)) + mb[0] * self.v[0] @ self.v[0]
                          + mb[-1] * self.v[-1] @ self.v[-1])
         Kw = 0.5 * float(np.sum(self.aw * self.Rdot ** 2))
-        U = float(self.potential(self.r, self.D, self.R, self.s, self.X))
+        U = self._potential_level()
         P = self.linear_momentum()
-        J = self.angular_momentum()
+        J_local = self._angular_momentum_local()
         mtot = self.m.sum() + self.mbar.sum()
-        rc = ((self.m[:, None] * self.r).sum(0) + (self.mbar[:, None] * self.X).sum(0)) / mtot
+        rc = ((self.m[:, None] * self.r).sum(0) + (self.mbar[:, None] * self.X).sum(0)) / mtot  # from the origin o
         out = {"energy": Kr + Kf + Kw + U, "kinetic_energy": Kr + Kf + Kw, "energy_rod_kinetic": Kr,
                "energy_fluid_kinetic": Kf, "energy_wall_kinetic": Kw, "energy_potential": U,
-               "linear_momentum": P, "angular_momentum": J, "angular_momentum_cm": J - np.cross(rc, P),
+               "linear_momentum": P, "angular_momentum": np.cross(self.origin, P) + J_local,
+               "angular_momentum_cm": J_local - np.cross(rc, P),
                "frame_orthogonality": float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3)))),
                "label_constraint": self.label_constraint_residual(),
                "mass": float(np.sum(rod.node_mass) + np.sum(self.mk))}
