@@ -1,6 +1,6 @@
 """pytest configuration.
 
-* The slow tier: tests marked ``slow`` (the heaviest validation runs, 0.5-1.7 min each) are left out of a plain
+* The slow tier: tests marked ``slow`` (the fifteen heaviest validation runs, 0.3-1.7 min each) are left out of a plain
   ``pytest`` run, which must take under 10 minutes on 2 cores; ``--slow`` runs them too, ``-m slow`` only them, and a
   test named by its node id (``file.py::test``) always runs.  CI (.ci/run) runs both tiers.
 * The README's test command runs the suite on every core (pytest-xdist, ``-n auto``): each worker then keeps to one

@@ -101,6 +101,7 @@ def test_pinned_pinned_pipe_is_bounded_below_u_pi_and_diverges_above():
     assert np.max(np.abs(mon["momentum_balance"])) < 1e-9
 
 
+@pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_clamped_clamped_pipe_is_bounded_below_u_2pi_and_diverges_above():
     """The clamped-clamped pipe diverges at u = 2 pi (pipe_stability, truth): bounded at 0.9 u_c, growing at 1.1 u_c at
     the linearisation's rate (measured 8.26 against 8.48 /s, 2.6 %: the rate is fitted while the deflection is between

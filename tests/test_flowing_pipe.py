@@ -112,6 +112,7 @@ def check_conservation(res):
     assert e.max() < 1e-10, e.max()
 
 
+@pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_flowing_pipe_dispersion_relation_and_its_order():
     """U = U_c / 2: the Coriolis-split frequencies converge to the Timoshenko pipe's at second order
     (measured -10.243 / 36.759 at 10 elements and -9.869 / 36.433 at 20 against -9.762 / 36.329; the
@@ -150,6 +151,7 @@ def test_flowing_pipe_is_stable_below_the_critical_speed():
     check_conservation(res)
 
 
+@pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_flowing_pipe_flutters_above_the_critical_speed():
     """1.1 U_c: one wave grows at the Timoshenko pipe's rate, converging at second order (measured growth
     11.33 / 11.98 1/s at 10 / 20 elements against 12.19; frequency 29.17 / 29.22 against 29.22).  The initial
@@ -189,6 +191,7 @@ def test_flowing_pipe_flutter_saturates_by_the_pressure_drop_of_the_lengthened_l
     assert res["momentum"] < 1e-14 and res["axial_momentum"] < 1e-11
 
 
+@pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_liquid_held_at_the_levels_has_no_alternating_mode():
     """The flowing lattice's parasitic mode (docs/theory.md §12, §10.12): in a dynamic wall, 10 elements,
     h = 2.5e-4, 1.1 U_c, the midpoint constraint let the level volumes alternate from step to step and grow

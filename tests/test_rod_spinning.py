@@ -360,6 +360,7 @@ def test_sparse_shift_invert_modes_equal_the_dense_ones(case):
     assert all(m["growth_rate"] == 0.0 for m in sparse)
 
 
+@pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_modes_of_a_thousand_element_rod():
     """Above 1500 unknowns rod_modes goes sparse: 1000 elements (6000 unknowns) against Timoshenko."""
     from test_rod import solid_section
