@@ -589,6 +589,11 @@ def unpack_level(q, N):
 ORIGIN_GRID = 2.0 ** -20
 
 
+def origin_shift(x):
+    """The floating origin's move to the point x: x rounded to ORIGIN_GRID (subtracting it from nearby positions is exact)."""
+    return np.round(x / ORIGIN_GRID) * ORIGIN_GRID
+
+
 # ---------------------------------------------------------------------------
 # numba kernel of RodPart.lagrangian_pieces (complex arithmetic, for the complex-step derivatives)
 

@@ -271,14 +271,13 @@ def halved_step(step, exc):
     except SolverError:
         halves_ok = False
     except BaseException:  # an interrupt or an unexpected error: back to the level before passing it on
-        step.h = h
-        step._halvings -= 1
         step.restore(before, n0)
         raise
     else:
         halves_ok = True
-    step.h = h
-    step._halvings -= 1
+    finally:
+        step.h = h
+        step._halvings -= 1
     outermost = step._halvings == 0
     if not halves_ok:  # back to the level the step started from, and the step's own message
         step.restore(before, n0)

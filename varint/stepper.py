@@ -31,7 +31,7 @@ from .errors import SolverError
 from .lie import cay, cay_inv
 from .newton import RATE_REFRESH, newton, newton_damped
 from .open_ends_stepping import OpenEndsStepping
-from .rod import ORIGIN_GRID, POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, pack_level, reorthonormalize, unpack_level
+from .rod import POLISH_ROD, RATE_REFRESH_ROD, XI_MAX, origin_shift, pack_level, reorthonormalize, unpack_level
 from .step_terms import Derivatives, StepPoint
 
 
@@ -134,7 +134,7 @@ class Step:
                 Lam_1[-1] = Lam_1[0]
                 r_1[-1] = r_1[0] + m.rod.period
             if floating_origin:
-                shift = np.round(r_1[0] / ORIGIN_GRID) * ORIGIN_GRID
+                shift = origin_shift(r_1[0])
                 r_1, origin = r_1 - shift, origin + shift
             parts.append(pack_level(Lam_1, r_1, origin))
         return np.concatenate(parts) if parts else np.empty(0)

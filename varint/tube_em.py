@@ -47,7 +47,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
-from .rod import ORIGIN_GRID
+from .rod import origin_shift
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
                      em_step, potential, rigid_correction, strains)
 
@@ -948,7 +948,7 @@ class TubeEMStep:
         W = self.body_angular_velocity()
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
         if self.floating_origin:
-            shift = np.round(self.r[0] / ORIGIN_GRID) * ORIGIN_GRID
+            shift = origin_shift(self.r[0])
             self.r, self.X, self.origin = self.r - shift, self.X - shift, self.origin + shift
         self.n += 1
         self.stats["iterations"] += it
@@ -958,7 +958,7 @@ class TubeEMStep:
         the current multipliers (varint.rod_em.halved_step's start for Newton at h)."""
         old = {k: np.asarray(before[f"tem_{k}"], dtype=float).reshape(np.shape(getattr(self, k)))
                for k in ("r", "D", "R", "s", "X")}
-        moved = self.origin - np.asarray(before.get("tem_origin", np.zeros(3)), dtype=float)  # the origin's moves since
+        moved = self.origin - before["tem_origin"]  # the floating origin's moves since
         return self.pack(self.r + moved - old["r"], self.D - old["D"], self.lam, self.R - old["R"],
                          (self.s - old["s"])[1:-1], self.X + moved - old["X"], self.nu)
 
