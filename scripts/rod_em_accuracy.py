@@ -47,7 +47,7 @@ def em_positions(h):
     E0 = s.energy()
     for _ in range(int(round(T / h))):
         s.step()
-    return s.r, "runs", s.energy() / E0 - 1
+    return s.r + s.origin, "runs", s.energy() / E0 - 1
 
 
 def main():

@@ -42,6 +42,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
+from .rod import origin_shift
 
 CHI = np.array([1.0, 0.0, 0.0])
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
@@ -349,6 +350,11 @@ class RodEMStep:
         self.fixed[self.N, NV:] = True
         self.free = not np.any(self.fixed[:, :NV])
         self.fixed = self.fixed.ravel()
+        # a free rod travels: r is kept relative to a floating origin o moved with node 0 after each step by an exact
+        # grid shift (varint.rod.origin_shift), so the rounding of r is eps times the rod's size, not eps times its
+        # distance from the start (docs/theory.md §12c; as TubeEMStep and the midpoint's FastRodStep)
+        self.floating_origin = self.free
+        self.origin = np.zeros(3)
         # Newton's update size: positions relative to L, director components as they are, on the q unknowns only
         self._qmask = np.tile(np.arange(self.nv) < 12, self.N + 1)
         self._update_scale = np.tile(np.concatenate([np.full(3, rod.L), np.ones(9)]), self.N + 1)
@@ -543,6 +549,9 @@ class RodEMStep:
         self.V = 2.0 * dD / h - self.V
         self._prev = (dr.copy(), self.D)
         self.r, self.D, self.lam = self.r + dr, self.D + dD, lam.copy()
+        if self.floating_origin:
+            shift = origin_shift(self.r[0])
+            self.r, self.origin = self.r - shift, self.origin + shift
         # d_1 has no inertia: its level velocity is set to the rigid one of the frame (it enters nothing)
         W = self.body_angular_velocity()
         self.V[:, :, 0] = np.einsum("nij,nj->ni", self.D, np.cross(W, CHI))
@@ -554,7 +563,8 @@ class RodEMStep:
         the current multipliers (halved_step's start for Newton at h)."""
         r0 = np.asarray(before["em_r"], dtype=float).reshape(self.r.shape)
         D0 = np.asarray(before["em_D"], dtype=float).reshape(self.D.shape)
-        return self._pack(self.r - r0, self.D - D0, self.lam)
+        moved = self.origin - before["em_origin"]  # the floating origin's moves since
+        return self._pack(self.r + moved - r0, self.D - D0, self.lam)
 
     def _prev_of(self, z):
         """The predictor's data (the last increment and the level it started from) for the step's unknowns z."""
@@ -607,7 +617,7 @@ class RodEMStep:
             self.restore(st.data, st.n)
         self.step()
         q, p = st.q.copy(), st.p.copy()
-        q[model.rod_q] = pack_level(self.D, self.r)
+        q[model.rod_q] = pack_level(self.D, self.r, self.origin)
         Pi = np.einsum("nji,nj->ni", self.D, np.cross(np.swapaxes(self.D, 1, 2),
                                                       np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum(1))
         p[model.rod_p] = np.concatenate([(self.m[:, None] * self.v).ravel(), Pi.ravel()])
@@ -622,6 +632,7 @@ class RodEMStep:
     def state_data(self):
         """The step's state as flat arrays for a checkpoint (``State.data``; varint/io.py writes them)."""
         data = {f"em_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
+        data["em_origin"] = self.origin.copy()
         if self._prev is not None:
             data["em_prev_dr"], data["em_prev_D"] = self._prev[0].ravel(), self._prev[1].ravel()
         return data
@@ -632,6 +643,8 @@ class RodEMStep:
         for k in self._STATE:
             cur = getattr(self, k)
             setattr(self, k, np.array(data[f"em_{k}"], dtype=float).reshape(cur.shape))
+        # a checkpoint written before the floating origin: its positions are absolute
+        self.origin = np.array(data.get("em_origin", np.zeros(3)), dtype=float).reshape(3)
         self._prev = None
         if "em_prev_dr" in data:
             self._prev = (np.array(data["em_prev_dr"], dtype=float).reshape(self.r.shape),
@@ -649,15 +662,17 @@ class RodEMStep:
     # -- monitors ------------------------------------------------------------------------------------
 
     def energy(self):
-        """The conserved total energy: 1/2 m |v|^2 + 1/2 E_i |d_i'|^2 + U."""
+        """The conserved total energy: 1/2 m |v|^2 + 1/2 E_i |d_i'|^2 + U, the loads' work on r + o in two parts."""
         kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
-        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd) - np.sum(self.fext * self.r))
+        return float(kin + potential(self.r, self.D, self.ds, self.Jd, self.Kd) - np.sum(self.fext * self.r)
+                     - float(self.fext.sum(0) @ self.origin))
 
     def linear_momentum(self):
         return (self.m[:, None] * self.v).sum(0)
 
     def angular_momentum(self):
-        return (np.cross(self.r, self.m[:, None] * self.v).sum(0)
+        """About the fixed origin: the floating origin's o x P plus the moments about o."""
+        return (np.cross(self.origin, self.linear_momentum()) + np.cross(self.r, self.m[:, None] * self.v).sum(0)
                 + np.cross(np.swapaxes(self.D, 1, 2), np.swapaxes(self.E[:, None, :] * self.V, 1, 2)).sum((0, 1)))
 
     def orthonormality(self):
