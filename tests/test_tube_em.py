@@ -185,6 +185,77 @@ def test_energy_and_momenta_identities_hold_for_any_unknowns(case):
     assert np.allclose(J1 - st.angular_momentum(), sums, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_compiled_loops_are_the_numpy_ones(case):
+    """varint/tube_em_kernels.py against the numpy reference: the parcel volumes and the whole residual, for
+    increments that move labels across elements, for none (the labels' t0 = t1 branch, on the nodes in the last case)
+    and on the level itself; the labels' constraint with labels crossing up to three elements; a complex-step batch's
+    derivatives; to round-off."""
+    from varint import tube_em_kernels as kernels
+    from varint.tube_em import _MQ
+
+    st = TubeEMStep(_case_model(case), 1e-3)
+    rng = np.random.default_rng(5)
+    for amp, still in ((1.0, False), (0.3, True), (0.0, True)):
+        dr, dD, dR, ds, dX = _random_increment(st, rng, amp=amp)
+        if still:
+            ds = np.zeros_like(ds)
+        z = st.pack(dr, dD, rng.normal(size=(st.N + 1, 6)), dR, ds, dX, rng.normal(size=st.nu.shape),
+                    mu_rod=rng.normal(size=(st.N, 3)), mu_liq=1e3 * rng.normal(size=st.M))
+        st.compiled = True
+        fast = st.residual(z)
+        st.compiled = False
+        ref = st.residual(z)
+        scale = np.abs(ref).max()
+        assert np.abs(fast - ref).max() < 1e-13 * scale, (amp, np.abs(fast - ref).max() / scale)
+        u, r1, D1, R1, s1, _ = st._levels(z)
+        gam1 = st.stretches(r1, D1)[2]
+        pk, pe = st._pairs(np.minimum(st.s, s1), np.maximum(st.s, s1))
+        V = np.empty((1, st.M))
+        kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, _MQ, V)
+        assert np.abs(V[0] - st._volumes_on(s1, R1, gam1, pk, pe)).max() < 1e-15 * V.max()
+    # the labels' constraint alone, its labels moved across up to three elements in one step
+    ds = 2.5 * st.ds * np.cos(np.arange(st.M - 1))
+    far = st.pack(dr, dD, np.zeros((st.N + 1, 6)), dR, ds, dX, rng.normal(size=st.nu.shape))
+    u, r1, D1, R1, s1, X1 = st._levels(far)
+    st.compiled = True
+    fast = st.label_constraint(u, r1, D1, s1, X1)
+    st.compiled = False
+    for a, b in zip(fast, st.label_constraint(u, r1, D1, s1, X1)):
+        assert np.abs(a - b).max() < 1e-13 * np.abs(b).max()
+    # a complex-step batch (the Jacobian's): each row's imaginary part, the derivative, as numpy's
+    dz = 1e-30j * rng.normal(size=(3, st.nz))
+    zc = z[None, :] + dz
+    st.compiled = True
+    fast = st.residual(zc)
+    st.compiled = False
+    ref = st.residual(zc)
+    assert np.abs(fast.real - ref.real).max() < 1e-13 * np.abs(ref.real).max()
+    assert np.abs(fast.imag - ref.imag).max() < 1e-12 * np.abs(ref.imag).max()
+
+
+def test_the_compiled_rod_discrete_gradient_is_rod_em_s():
+    """varint.tube_em_kernels.rod_discrete_gradient against varint.rod_em.discrete_gradient with a stress, on random
+    directors (not orthonormal) and a complex batch."""
+    from varint.rod_em import discrete_gradient
+    from varint.tube_em_kernels import rod_discrete_gradient
+
+    rng = np.random.default_rng(7)
+    N, ds = 5, 0.2
+    Jd, Kd = np.array([0.8, 1.0, 1.2]), np.array([100.0, 60.0, 70.0])
+    r0 = np.cumsum(rng.normal(size=(N + 1, 3)) * 0.05 + [ds, 0, 0], 0)
+    D0 = np.eye(3) + 0.2 * rng.normal(size=(N + 1, 3, 3))
+    r1 = r0 + 0.01 * rng.normal(size=(2, N + 1, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3))
+    D1 = D0 + 0.1 * rng.normal(size=(2, N + 1, 3, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3, 3))
+    stress = rng.normal(size=(2, N, 3))
+    Fr, FD = np.empty(r1.shape, complex), np.empty(D1.shape, complex)
+    rod_discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress, Fr, FD)
+    Fr_ref, FD_ref = discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress)
+    for a, b in ((Fr, Fr_ref), (FD, FD_ref)):
+        assert np.abs(a.real - b.real).max() < 1e-13 * np.abs(b.real).max()
+        assert np.abs(a.imag - b.imag).max() < 1e-12 * np.abs(b.imag).max()
+
+
 def test_the_newton_jacobian_is_the_derivative_of_the_residual():
     st = TubeEMStep(_model(fluid=LIQUID), 1e-3)
     rng = np.random.default_rng(4)

@@ -46,6 +46,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import tube_em_kernels as kernels
 from .errors import SolverError
 from .rod import origin_shift
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
@@ -274,6 +275,9 @@ class TubeEMStep:
         self.h, self.tol, self.max_iter = float(h), tol, max_iter
         self.body = bool(body)
         self.rate_refresh = 0.5  # chord: a new Jacobian when an update shrinks less than this
+        #: the compiled loops (varint/tube_em_kernels.py: the fluid's pairs, the labels' constraint, the rod's discrete
+        #: gradient); False: the numpy reference throughout
+        self.compiled = True
         self.N, self.M, self.ds = rod.N, t.M, rod.ds
         n1 = self.N + 1
         self.constrained = bool(rod.constrained)
@@ -552,7 +556,16 @@ class TubeEMStep:
         pk, pe = self._pairs(np.minimum(self.s, s1_re.min(0)), np.maximum(self.s, s1_re.max(0)))
         p0 = self._pairs0(lvl, pk, pe)
         V0 = p0["V0"]
-        V1 = self._volumes_on(s1, R1, gam1, pk, pe)
+        b = s1.shape[:-1]
+        if self.compiled:  # the per-pair loops compiled (varint/tube_em_kernels.py), on the batch's rows
+            dt = np.result_type(s1, R1, gam1)
+            rows = lambda x, n: np.ascontiguousarray(np.broadcast_to(x, b + (n,)), dtype=dt).reshape(-1, n)  # noqa: E731
+            s1r, R1r, g1r = rows(s1, self.M + 1), rows(R1, self.N + 1), rows(gam1, self.N + 1)
+            V1 = np.empty((s1r.shape[0], self.M), dtype=dt)
+            kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, _MQ, V1)
+            V1 = V1.reshape(b + (self.M,))
+        else:
+            V1 = self._volumes_on(s1, R1, gam1, pk, pe)
         if self.eos is not None:
             psi = lambda V: self.eos.psi(V, self.mk, self.Sk)  # noqa: E731
             dpsi = lambda V: self.eos.dpsi(V, self.mk, self.Sk)[0]  # noqa: E731
@@ -562,6 +575,13 @@ class TubeEMStep:
         c = c + self.p_ext
         if self.incompressible:
             c = c - u["mu_liq"]
+        if self.compiled:
+            dt = np.result_type(dt, c)
+            B = s1r.shape[0]
+            gs, gR, gg = np.empty((B, self.M + 1), dt), np.empty((B, self.N + 1), dt), np.empty((B, self.N + 1), dt)
+            kernels.pair_gradients(self.s, s1r.astype(dt), self.R, R1r.astype(dt), lvl["gam0"], g1r.astype(dt), pk, pe,
+                                   rows(c, self.M).astype(dt), self.ds, _MQ, gs, gR, gg)
+            return self._fluid_out(V0, V1, c, gs.reshape(b + (-1,)), gR.reshape(b + (-1,)), gg.reshape(b + (-1,)))
         cp = c[..., pk]  # per pair
         ds = self.ds
         # S parts (label coordinates) and their exact divided differences, per pair
@@ -592,6 +612,11 @@ class TubeEMStep:
         gs = _scatter(np.concatenate([g_lo, g_hi], -1), np.concatenate([pk, pk + 1]), self.M + 1)
         gR = _scatter(np.concatenate([gRp[..., 0], gRp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
         gg = _scatter(np.concatenate([gGp[..., 0], gGp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
+        return self._fluid_out(V0, V1, c, gs, gR, gg)
+
+    @staticmethod
+    def _fluid_out(V0, V1, c, gs, gR, gg):
+        """fluid_discrete_gradient's result from the scattered gradients (gs on all labels, gg on the nodal stretches)."""
         # nodal stretch -> element stretches: gamma_0 = |G_0|, gamma_N = |G_(N-1)|, else the mean of the two
         gG = 0.5 * (gg[..., :-1] + gg[..., 1:])
         gG[..., 0] += 0.5 * gg[..., 0]
@@ -604,6 +629,8 @@ class TubeEMStep:
         sk0, sk1 = self.s[1:-1], s1[..., 1:-1]
         lvl = self._level0()
         e = lvl["fr"]
+        if self.compiled:  # the per-label loops compiled (varint/tube_em_kernels.py), on the batch's rows
+            return self._label_constraint_compiled(u["nu"], r1, D1, s1, X1, e)
         W0 = lvl["W0"]
         W1 = label_weights(sk1, n1, self.ds)
         De0, De1 = lvl["De0"], D1[..., e, :, :]
@@ -625,6 +652,32 @@ class TubeEMStep:
                      + np.einsum("...kj,...kji,...ki->...k", np.einsum("...kn,...nj->...kj", DD, r1), De1, nu))
         return c1, Fr, FD, Fs, FX
 
+    def _rod_dg_compiled(self, r1, D1, stress):
+        n1 = self.N + 1
+        b = r1.shape[:-2]
+        dt = np.result_type(r1, D1, stress)
+        rows = lambda x, tail: np.ascontiguousarray(np.broadcast_to(x, b + tail), dtype=dt).reshape((-1,) + tail)  # noqa: E731
+        r1r, D1r, str_r = rows(r1, (n1, 3)), rows(D1, (n1, 3, 3)), rows(stress, (self.N, 3))
+        B = r1r.shape[0]
+        Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
+        kernels.rod_discrete_gradient(self.r, self.D, r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
+        return Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3))
+
+    def _label_constraint_compiled(self, nu, r1, D1, s1, X1, fr):
+        n1, K = self.N + 1, self.M - 1
+        b = s1.shape[:-1]
+        dt = np.result_type(nu, r1, D1, s1, X1)
+        rows = lambda x, tail: np.ascontiguousarray(np.broadcast_to(x, b + tail), dtype=dt).reshape((-1,) + tail)  # noqa: E731
+        r1r, D1r, s1r = rows(r1, (n1, 3)), rows(D1, (n1, 3, 3)), rows(s1, (self.M + 1,))
+        X1r, nur = rows(X1, (K, 3)), rows(nu, (K, 3))
+        B = r1r.shape[0]
+        c1, Fs, FX = np.empty((B, K, 3), dt), np.empty((B, K), dt), np.empty((B, K, 3), dt)
+        Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
+        kernels.label_constraint(self.r, self.D, self.X, self.s, fr, r1r, D1r, s1r, X1r, nur, self.ds, _CR, c1, Fr, FD,
+                                 Fs, FX)
+        return (c1.reshape(b + (K, 3)), Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3)), Fs.reshape(b + (K,)),
+                FX.reshape(b + (K, 3)))
+
     @staticmethod
     def _add_frames(FD, e, vals):
         for kk, node in enumerate(e):
@@ -643,7 +696,10 @@ class TubeEMStep:
         stress = (fl["gG"] / self.ds)[..., None] * ghat
         if u["mu_rod"] is not None:
             stress = stress + u["mu_rod"]
-        Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd, stress)
+        if self.compiled:
+            Fr, FD = self._rod_dg_compiled(r1, D1, stress)
+        else:
+            Fr, FD = discrete_gradient(self.r, self.D, r1, D1, self.ds, self.Jd, self.Kd, stress)
         c1, Fr_c, FD_c, Fs_c, FX_c = self.label_constraint(u, r1, D1, s1, X1)
         lam = u["lam"]
         Db = 0.5 * (self.D + D1)
