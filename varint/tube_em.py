@@ -35,9 +35,11 @@ level's body frames (T^T J T: r, D and the labels' X turned by the directors, so
 refreshed when the contraction is slower than 1/2; the Jacobian by complex step with a colouring of its columns
 (the pattern by location from the stencils, :meth:`TubeEMStep._cliques`; ~110 batched residuals at 20 or 40
 elements with a liquid), each one checked against a random directional derivative in the same batch; a rigid
-correction of the solution zeroes the momentum balances.  The residual is numpy (not compiled): ~1-2 ms at 20
-elements, and the 15-20 chord iterations per step to the round-off floor are most of a step's cost
-(docs/performance.md, "The coupled tube's energy-momentum step").
+correction of the solution zeroes the momentum balances.  The residual's three heavy parts (the fluid's pairs, the
+labels' constraint, the rod's discrete gradient) run as compiled loops (varint/tube_em_kernels.py) on real iterates
+and on the Jacobian's complex batches; the numpy code beside them is the reference (``compiled = False``), tested
+equal to round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
+a Jacobian every 1-4 steps share the cost (docs/performance.md, "The coupled tube's energy-momentum step").
 """
 
 from __future__ import annotations
