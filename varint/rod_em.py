@@ -28,7 +28,8 @@ are conserved to round-off.
 
 Scope in this version: the rod alone, free, pinned or clamped ends, gravity and a dead tip force (potentials linear
 in r: their discrete gradient is exact), shearable or with rod.constraint (Gamma = chi held at the levels by element
-forces mu); runs resume from checkpoints (state_data).  No tip torque, fluid, wall, paper measure or periodic ends
+forces mu); a dead tip torque (its work summed: E - work is conserved, J changes by exactly h T per step); runs
+resume from checkpoints (state_data).  No fluid or wall (varint/tube_em.py has them), paper measure or periodic ends
 (the scene check refuses them in one line).  The default remains the midpoint scheme.  The momenta are kept to
 round-off by increments as unknowns and a rigid polish after Newton (docs/theory.md §12a, "Momenta to round-off").
 """
@@ -58,8 +59,6 @@ def supports(model):
     sc = model.scene
     if rod.periodic:
         return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
-    if np.any(rod.torque):
-        return "time.scheme: 'energy-momentum' does not cover a tip torque (rod.load.torque) in this version"
     if rod.paper_measure:
         return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
     return None
@@ -159,6 +158,17 @@ def rigid_correction(h, P, J, m, x, E, Db):
     A[3:, 3:] = Ilock
     aw = np.linalg.solve(A, -(0.5 * h) * np.concatenate([P, J]))
     return aw[:3], aw[3:]
+
+
+def tip_torque_forces(Db, torque):
+    """The director forces F_i = w x dbar_i (.., 3, 3; column i) of a dead torque T at a node whose mean directors are
+    the columns of Db, with (tr M I - M) w = T, M = Db Db^T, so that sum_i dbar_i x F_i = T exactly: the step's angular
+    momentum changes by exactly h T, and the energy by the work sum_i F_i . (d_i^1 - d_i^0) (docs/theory.md §12a,
+    "A dead tip torque").  Complex-safe (the Jacobian's complex steps pass through the 3x3 solve)."""
+    M = Db @ np.swapaxes(Db, -1, -2)
+    A = np.trace(M, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) - M
+    w = np.linalg.solve(A, np.broadcast_to(torque, A.shape[:-1])[..., None])[..., 0]
+    return np.swapaxes(np.cross(w[..., None, :], np.swapaxes(Db, -1, -2)), -1, -2)
 
 
 def chord_newton(step, z, chord, residual, factor, update, size_of, domain_problem=None):
@@ -339,6 +349,11 @@ class RodEMStep:
         # tip force; U_ext = -sum f_j . r_j
         self.fext = self.m[:, None] * rod.g[None, :]
         self.fext[-1] += rod.force
+        # a dead tip torque T (not conservative): director forces at node N with sum_i dbar_i x F_i = T exactly
+        # (tip_torque_forces); its work is summed in self.work, so that E - work is the conserved quantity
+        self.torque = np.asarray(rod.torque, dtype=float)
+        self.has_torque = bool(np.any(self.torque))
+        self.work = 0.0
         # supports: a pinned node keeps r (its rows become r_1 - r_0 = 0), a clamped one also its directors and its
         # orthonormality multipliers (its orthonormality then holds by itself; its element's mu stays free)
         self.fixed = np.zeros((self.N + 1, self.nv), dtype=bool)
@@ -409,13 +424,22 @@ class RodEMStep:
         return self._loads_and_supports(z, out)
 
     def _loads_and_supports(self, z, out):
-        """Add the loads' impulse -h f_ext to the r rows; replace the held unknowns' rows by their increments z."""
+        """Add the loads' impulses (-h f_ext on the r rows, -h F_i of a tip torque on node N's director rows); replace
+        the held unknowns' rows by their increments z."""
         if np.any(self.fext):
             o = out.reshape(out.shape[:-1] + (self.N + 1, self.nv))
             o[..., :3] -= self.h * self.fext
+        if self.has_torque:
+            o = out.reshape(out.shape[:-1] + (self.N + 1, self.nv))
+            o[..., -1, 3:12] -= self.h * self._torque_forces(z).reshape(z.shape[:-1] + (9,))
         if np.any(self.fixed):
             out[..., self.fixed] = z[..., self.fixed]
         return out
+
+    def _torque_forces(self, z):
+        """The tip torque's director forces at node N (.., 3, 3) at the mean directors of z's step."""
+        dDN = z.reshape(z.shape[:-1] + (self.N + 1, self.nv))[..., -1, 3:12].reshape(z.shape[:-1] + (3, 3))
+        return tip_torque_forces(self.D[-1] + 0.5 * dDN, self.torque)
 
     def _kernel(self, z, out):
         _k_residual(self.r, self.D, self.v, self.V, self.m, self.E, z, self.h, self.ds, self.Jd, self.Kd, self.nv, out)
@@ -543,6 +567,8 @@ class RodEMStep:
         dr, dD, lam = self._unpack(z)
         if self.constrained:
             self.mu = z.reshape(self.N + 1, self.nv)[:, NV:].copy()
+        if self.has_torque:
+            self.work += float(np.sum(self._torque_forces(z) * dD[-1]))
         # the velocities from the increments themselves, not from differences of rounded positions: the momenta then
         # change by the residual's floor only (docs/theory.md §12a, "Momenta to round-off")
         self.v = 2.0 * dr / h - self.v
@@ -582,6 +608,8 @@ class RodEMStep:
         Db = self.D + 0.5 * dD
         fr = (2.0 / h) * self.m[:, None] * (dr - h * self.v) - h * self.fext
         fD = (2.0 / h) * self.E[:, None, :] * (dD - h * self.V)
+        if self.has_torque:
+            fD[-1] -= h * self._torque_forces(z)
         P = fr.sum(0)
         J = np.cross(rb, fr).sum(0) + np.cross(np.swapaxes(Db, 1, 2), np.swapaxes(fD, 1, 2)).sum((0, 1))
         return P, J, rb, Db
@@ -633,6 +661,7 @@ class RodEMStep:
         """The step's state as flat arrays for a checkpoint (``State.data``; varint/io.py writes them)."""
         data = {f"em_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
         data["em_origin"] = self.origin.copy()
+        data["em_work"] = np.array([self.work])
         if self._prev is not None:
             data["em_prev_dr"], data["em_prev_D"] = self._prev[0].ravel(), self._prev[1].ravel()
         return data
@@ -645,6 +674,7 @@ class RodEMStep:
             setattr(self, k, np.array(data[f"em_{k}"], dtype=float).reshape(cur.shape))
         # a checkpoint written before the floating origin: its positions are absolute
         self.origin = np.array(data.get("em_origin", np.zeros(3)), dtype=float).reshape(3)
+        self.work = float(np.asarray(data.get("em_work", [0.0])).ravel()[0])
         self._prev = None
         if "em_prev_dr" in data:
             self._prev = (np.array(data["em_prev_dr"], dtype=float).reshape(self.r.shape),
@@ -656,8 +686,11 @@ class RodEMStep:
         """The conserved energy (kinetic in the director velocities) and momenta, for the stepper's monitors."""
         kin = 0.5 * np.sum(self.m * np.sum(self.v ** 2, 1)) + 0.5 * np.sum(self.E[:, None, :] * self.V ** 2)
         E = self.energy()
-        return {"energy": E, "kinetic_energy": float(kin), "linear_momentum": self.linear_momentum(),
-                "angular_momentum": self.angular_momentum(), "frame_orthogonality": self.orthonormality()}
+        out = {"energy": E, "kinetic_energy": float(kin), "linear_momentum": self.linear_momentum(),
+               "angular_momentum": self.angular_momentum(), "frame_orthogonality": self.orthonormality()}
+        if self.has_torque:
+            out["external_work"] = self.work  # the tip torque's, since t = 0: E - external_work is conserved
+        return out
 
     # -- monitors ------------------------------------------------------------------------------------
 

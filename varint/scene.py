@@ -175,7 +175,8 @@ SCHEMA = MappingProxyType({
         _pos("step", "s", "time step h"),
         _pos("end", "s", "final time"),
         Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': energy and "
-            "momenta conserved at any step, for the rod (no tip torque; shearable or rod.constraint; docs/theory.md §12a) and the "
+            "momenta conserved at any step (a dead tip torque changes them by its work and impulse), for the rod (shearable or "
+            "rod.constraint; docs/theory.md §12a) and the "
             "coupled tube with closed ends and a rigid or dynamic wall (§12b)",
             choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
@@ -601,8 +602,6 @@ class _Validator:
                 self.bad("time.scheme", "'energy-momentum' does not cover [shock_capturing] in this version")
             elif rod.ends.s0 == "periodic":
                 self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
-            elif any((rod.load or {}).get("torque") or ()):
-                self.bad("time.scheme", "'energy-momentum' does not cover a tip torque (rod.load.torque) in this version")
             elif rod.measure == "paper":
                 self.bad("time.scheme", "'energy-momentum' needs rod.measure = 'reference'")
         if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None

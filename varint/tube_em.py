@@ -28,7 +28,8 @@ energy is conserved to the solver's residual and P, J to its floor (tested in te
 Scope in this version: closed fluid ends; free, pinned or clamped rod ends; rigid or dynamic wall (linear law or
 tube law); ideal gas, barotropic liquid or incompressible liquid; gravity, a dead tip force, p_ext; rod.constraint.
 Not covered (the scene check refuses them in one line naming time.scheme): open or periodic ends, a quasistatic
-wall, shock capturing and other non-conservative forces, a tip torque, the paper's measure.
+wall, shock capturing and other non-conservative forces (a dead tip torque is covered: its work is summed), the
+paper's measure.
 
 Newton (as :class:`varint.rod_em.RodEMStep`): chord iterations on a kept SuperLU factorisation of the Jacobian in the
 level's body frames (T^T J T: r, D and the labels' X turned by the directors, so the matrix survives a rigid turn),
@@ -52,7 +53,7 @@ from . import tube_em_kernels as kernels
 from .errors import SolverError
 from .rod import origin_shift
 from .rod_em import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient,
-                     em_step, potential, rigid_correction, strains)
+                     em_step, potential, rigid_correction, strains, tip_torque_forces)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
@@ -80,8 +81,6 @@ def supports(model):
         return "time.scheme: 'energy-momentum' needs wall.model = 'dynamic' (or no [wall]); a quasistatic wall is not covered"
     if t.forces:
         return "time.scheme: 'energy-momentum' does not cover non-conservative forces (shock capturing, damping) in this version"
-    if np.any(rod.torque):
-        return "time.scheme: 'energy-momentum' does not cover a tip torque (rod.load.torque) in this version"
     if rod.paper_measure:
         return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
     return None
@@ -324,6 +323,10 @@ class TubeEMStep:
         self.g = np.asarray(rod.g, dtype=float)
         self.fext = self.m[:, None] * self.g[None, :]
         self.fext[-1] += rod.force
+        # a dead tip torque: varint.rod_em.tip_torque_forces (J changes by exactly h T per step; its work summed)
+        self.torque = np.asarray(rod.torque, dtype=float)
+        self.has_torque = bool(np.any(self.torque))
+        self.work = 0.0
         # supports (rod_em's): a pinned node keeps r, a clamped one also its directors and multipliers
         self.fix_r = np.zeros(n1, bool)
         self.fix_D = np.zeros(n1, bool)
@@ -710,6 +713,8 @@ class TubeEMStep:
                        np.stack([lam[..., 4], lam[..., 5], 2 * lam[..., 2]], -1)], -2)
         Rr = (2.0 / h) * self.m[:, None] * (u["dr"] - h * self.v) + h * (Fr + Fr_c - self.fext)
         RD = (2.0 / h) * self.E[:, None, :] * (u["dD"] - h * self.V) + h * (FD + FD_c + Db @ Sm)
+        if self.has_torque:
+            RD[..., -1, :, :] -= h * tip_torque_forces(Db[..., -1, :, :], self.torque)
         C = _T(D1) @ D1
         Rl = np.stack([C[..., i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
         b = z.shape[:-1]
@@ -948,6 +953,8 @@ class TubeEMStep:
         rb, Db, Xb = self.r + 0.5 * u["dr"], self.D + 0.5 * u["dD"], self.X + 0.5 * u["dX"]
         fr = (2.0 / h) * self.m[:, None] * (u["dr"] - h * self.v) - h * self.fext
         fD = (2.0 / h) * self.E[:, None, :] * (u["dD"] - h * self.V)
+        if self.has_torque:
+            fD[-1] -= h * tip_torque_forces(Db[-1], self.torque)
         fX = (2.0 / h) * self.mbar[:, None] * (u["dX"] - h * self.Xdot) - h * self.mbar[:, None] * self.g
         P = fr.sum(0) + fX.sum(0)
         J = (np.cross(rb, fr).sum(0) + np.cross(np.swapaxes(Db, 1, 2), np.swapaxes(fD, 1, 2)).sum((0, 1))
@@ -986,6 +993,8 @@ class TubeEMStep:
         if self.free:
             z = self._polish_rigid(z)
         u = self.unpack(z)
+        if self.has_torque:
+            self.work += float(np.sum(tip_torque_forces(self.D[-1] + 0.5 * u["dD"][-1], self.torque) * u["dD"][-1]))
         self.v = 2.0 * u["dr"] / h - self.v
         self.V = 2.0 * u["dD"] / h - self.V
         self.Xdot = 2.0 * u["dX"] / h - self.Xdot
@@ -1074,6 +1083,7 @@ class TubeEMStep:
     def state_data(self):
         data = {f"tem_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
         data["tem_origin"] = self.origin.copy()
+        data["tem_work"] = np.array([self.work])
         if self._prev is not None:
             for k, v in zip(("dr", "D", "dR", "ds", "dX"), self._prev):
                 data[f"tem_prev_{k}"] = np.asarray(v, dtype=float).ravel()
@@ -1086,6 +1096,7 @@ class TubeEMStep:
             setattr(self, k, np.array(data[f"tem_{k}"], dtype=float).reshape(np.shape(cur)))
         # a checkpoint written before the floating origin: its positions are absolute
         self.origin = np.array(data.get("tem_origin", np.zeros(3)), dtype=float).reshape(3)
+        self.work = float(np.asarray(data.get("tem_work", [0.0])).ravel()[0])
         self._prev = None
         if "tem_prev_dr" in data:
             shapes = (self.r.shape, self.D.shape, self.R.shape, (self.M - 1,), self.X.shape)
@@ -1146,6 +1157,8 @@ class TubeEMStep:
                "frame_orthogonality": float(np.max(np.abs(_T(self.D) @ self.D - np.eye(3)))),
                "label_constraint": self.label_constraint_residual(),
                "mass": float(np.sum(rod.node_mass) + np.sum(self.mk))}
+        if self.has_torque:
+            out["external_work"] = self.work  # the tip torque's, since t = 0: E - external_work is conserved
         if self.eos is not None and self.eos.has_entropy:
             out["entropy"] = float(np.sum(self.mk * self.Sk))
         if self.incompressible:
