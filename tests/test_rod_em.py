@@ -324,14 +324,16 @@ def test_body_frame_rotation_kernel_is_the_block_diagonal_T(constraint):
     assert np.allclose(s._rotate(x, transpose=True), T.T @ x, rtol=0, atol=1e-15)
 
 
-def test_a_resumed_run_continues_the_uninterrupted_one(tmp_path):
+@pytest.mark.parametrize("torque", [False, True], ids=["", "tip-torque"])
+def test_a_resumed_run_continues_the_uninterrupted_one(tmp_path, torque):
     """varint run --resume with the energy-momentum step: the checkpoint carries the step's own state (director
-    velocities, multipliers, last increment; RodEMStep.state_data) and the kept factorisation is dropped at every
-    checkpoint, so the run resumed from the step-30 checkpoint repeats the uninterrupted one bit for bit."""
+    velocities, multipliers, last increment, floating origin, a tip torque's work; RodEMStep.state_data) and the kept
+    factorisation is dropped at every checkpoint, so the run resumed from the step-30 checkpoint repeats the
+    uninterrupted one bit for bit."""
     from varint.io import read_run
     from varint.runner import run_scene
 
-    d = _scene_dict(h=5e-3, scheme="energy-momentum")
+    d = _scene_dict(h=5e-3, scheme="energy-momentum", load={"torque": TORQUE} if torque else None)
     d["time"]["end"] = 0.5
     d["output"] = {"every": 10}
     scene = parse_scene(to_toml(d))
@@ -346,6 +348,9 @@ def test_a_resumed_run_continues_the_uninterrupted_one(tmp_path):
     for k in a["monitors"]:
         assert np.array_equal(a["monitors"][k], b["monitors"][k]), k
     E = b["monitors"]["energy"]
+    if torque:
+        assert abs(b["monitors"]["external_work"][-1]) > 1e-4 * abs(E[0])
+        E = E - b["monitors"]["external_work"]
     assert np.max(np.abs(E / E[0] - 1)) < 1e-12
 
 

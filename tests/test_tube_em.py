@@ -187,51 +187,80 @@ def test_energy_and_momenta_identities_hold_for_any_unknowns(case):
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_the_compiled_loops_are_the_numpy_ones(case):
-    """varint/tube_em_kernels.py against the numpy reference: the parcel volumes and the whole residual, for
-    increments that move labels across elements, for none (the labels' t0 = t1 branch, on the nodes in the last case)
-    and on the level itself; the labels' constraint with labels crossing up to three elements; a complex-step batch's
-    derivatives; to round-off."""
+    """varint/tube_em_kernels.py against the numpy reference, real iterates and complex-step batches (the Jacobian's):
+    the parcel volumes and the whole residual for labels moved across elements, for labels held (the t0 = t1
+    branch), on the level itself, and for labels moved exactly onto nodes (where the branches meet); the labels'
+    constraint with labels crossing up to three elements; to round-off."""
     from varint import tube_em_kernels as kernels
     from varint.tube_em import _MQ
 
     st = TubeEMStep(_case_model(case), 1e-3)
     rng = np.random.default_rng(5)
-    for amp, still in ((1.0, False), (0.3, True), (0.0, True)):
-        dr, dD, dR, ds, dX = _random_increment(st, rng, amp=amp)
-        if still:
-            ds = np.zeros_like(ds)
+    s_in = st.s[1:-1]
+    onto = np.rint(s_in / st.ds) * st.ds - s_in  # each label onto its nearest node, where no neighbour took it
+    onto[1:][np.rint(s_in[1:] / st.ds) == np.rint(s_in[:-1] / st.ds)] = 0.0
+    for name, amp, ds in (("across", 1.0, np.full(st.M - 1, 0.45 * st.ds)), ("held", 0.3, np.zeros(st.M - 1)),
+                          ("level", 0.0, np.zeros(st.M - 1)), ("onto nodes", 0.3, onto)):
+        dr, dD, dR, _, dX = _random_increment(st, rng, amp=amp)
         z = st.pack(dr, dD, rng.normal(size=(st.N + 1, 6)), dR, ds, dX, rng.normal(size=st.nu.shape),
                     mu_rod=rng.normal(size=(st.N, 3)), mu_liq=1e3 * rng.normal(size=st.M))
-        st.compiled = True
-        fast = st.residual(z)
-        st.compiled = False
-        ref = st.residual(z)
-        scale = np.abs(ref).max()
-        assert np.abs(fast - ref).max() < 1e-13 * scale, (amp, np.abs(fast - ref).max() / scale)
+        zc = z[None, :] + 1e-30j * rng.normal(size=(3, st.nz))
+        for zz in (z, zc):
+            st.compiled = True
+            fast = st.residual(zz)
+            st.compiled = False
+            ref = st.residual(zz)
+            assert np.abs(fast.real - ref.real).max() < 1e-13 * np.abs(ref.real).max(), name
+            if np.iscomplexobj(zz):
+                assert np.abs(fast.imag - ref.imag).max() < 1e-12 * np.abs(ref.imag).max(), name
         u, r1, D1, R1, s1, _ = st._levels(z)
         gam1 = st.stretches(r1, D1)[2]
         pk, pe = st._pairs(np.minimum(st.s, s1), np.maximum(st.s, s1))
         V = np.empty((1, st.M))
         kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, _MQ, V)
-        assert np.abs(V[0] - st._volumes_on(s1, R1, gam1, pk, pe)).max() < 1e-15 * V.max()
-    # the labels' constraint alone, its labels moved across up to three elements in one step
+        assert np.abs(V[0] - st._volumes_on(s1, R1, gam1, pk, pe)).max() < 1e-15 * V.max(), name
+    # the labels' constraint alone, its labels moved across up to three elements in one step, real and complex
     ds = 2.5 * st.ds * np.cos(np.arange(st.M - 1))
     far = st.pack(dr, dD, np.zeros((st.N + 1, 6)), dR, ds, dX, rng.normal(size=st.nu.shape))
-    u, r1, D1, R1, s1, X1 = st._levels(far)
-    st.compiled = True
-    fast = st.label_constraint(u, r1, D1, s1, X1)
-    st.compiled = False
-    for a, b in zip(fast, st.label_constraint(u, r1, D1, s1, X1)):
-        assert np.abs(a - b).max() < 1e-13 * np.abs(b).max()
-    # a complex-step batch (the Jacobian's): each row's imaginary part, the derivative, as numpy's
-    dz = 1e-30j * rng.normal(size=(3, st.nz))
-    zc = z[None, :] + dz
-    st.compiled = True
-    fast = st.residual(zc)
-    st.compiled = False
-    ref = st.residual(zc)
-    assert np.abs(fast.real - ref.real).max() < 1e-13 * np.abs(ref.real).max()
-    assert np.abs(fast.imag - ref.imag).max() < 1e-12 * np.abs(ref.imag).max()
+    for zz in (far, far[None, :] + 1e-30j * rng.normal(size=(2, st.nz))):
+        u, r1, D1, R1, s1, X1 = st._levels(zz)
+        st.compiled = True
+        fast = st.label_constraint(u, r1, D1, s1, X1)
+        st.compiled = False
+        for a, b in zip(fast, st.label_constraint(u, r1, D1, s1, X1)):
+            assert np.abs(a.real - b.real).max() < 1e-13 * np.abs(b.real).max()
+            assert np.abs(a.imag - b.imag).max() <= 1e-12 * np.abs(b.imag).max()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compiled):
+    """A label exactly on a node is at t = 1 on one element and t = 0 on the next: only the element that owns it
+    passes a complex step through (tube_em._clip_owned), so dV/ds by complex step is the volumes' derivative (V is
+    C^1 in s), measured by central differences, not twice it (as it was before)."""
+    from varint import tube_em_kernels as kernels
+    from varint.tube_em import _MQ
+
+    st = TubeEMStep(_case_model("gas-pressurised-on-nodes"), 1e-3)
+    on_node = np.abs(st.s / st.ds - np.rint(st.s / st.ds)) < 1e-12
+    assert on_node[1:-1].all()
+    gam = st.stretches(st.r, st.D)[2]
+    pk, pe = st._pairs(st.s - st.ds, st.s + st.ds)
+
+    def vol(s):
+        if not compiled:
+            return st._volumes_on(s, st.R, gam, pk, pe)
+        V = np.empty((1, st.M), dtype=np.result_type(s, float))
+        kernels.pair_volumes(np.atleast_2d(s), st.R[None].astype(V.dtype), gam[None].astype(V.dtype), pk, pe, st.ds,
+                             _MQ, V)
+        return V[0]
+
+    for k in range(1, st.M):
+        e = np.zeros(st.M + 1)
+        e[k] = 1.0
+        cs = vol(st.s + 1e-30j * e).imag / 1e-30
+        d = 1e-6 * st.ds
+        fd = (vol(st.s + d * e) - vol(st.s - d * e)) / (2 * d)
+        assert np.abs(cs - fd).max() < 1e-6 * np.abs(fd).max(), (k, cs, fd)
 
 
 def test_the_compiled_rod_discrete_gradient_is_rod_em_s():

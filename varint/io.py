@@ -49,6 +49,7 @@ UNITS = {
     "monitors/energy_bending_torsion": "J",
     "monitors/energy_stretch_shear": "J",
     "monitors/energy_load": "J",
+    "monitors/external_work": "J",
     "monitors/mass": "kg",
     "monitors/linear_momentum": "kg m/s",
     "monitors/angular_momentum": "kg m^2/s",
@@ -419,6 +420,9 @@ def summary(path):
     }
     if len(run["time"]) and "energy" in mon:
         E = mon["energy"]
+        if "external_work" in mon:  # a tip torque under the energy-momentum step: E - W is the conserved quantity
+            E = E - mon["external_work"]
+            d["energy_deviation_of"] = "energy - external_work"
         # relative to |E(0)|, or to the largest kinetic energy when the run starts at zero energy
         ref = max(abs(E[0]), float(np.max(mon["kinetic_energy"])) if "kinetic_energy" in mon else 0.0, 1e-300)
         d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)

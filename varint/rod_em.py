@@ -24,7 +24,8 @@ U(q_1) - U(q_0) = grad_d U . (q_1 - q_0) identically (for any q_0, q_1, not only
 gives g(q_1) - g(q_0) = G(q_bar)(q_1 - q_0), and the kinetic energy changes by v_bar . M dv = -dU: energy conserved
 to the solver's residual.  Every piece is invariant under r -> Q r + c, D -> Q D for all Q in O(3) acting linearly,
 so the midpoint-evaluated gradients annihilate the rigid directions at q_bar: P and J = sum r x m v + d_i x E_i d_i'
-are conserved to round-off.
+are conserved to round-off (without loads: gravity and a tip force change P by exactly h sum f, a tip torque J by
+exactly h T per step).
 
 Scope in this version: the rod alone, free, pinned or clamped ends, gravity and a dead tip force (potentials linear
 in r: their discrete gradient is exact), shearable or with rod.constraint (Gamma = chi held at the levels by element
@@ -519,8 +520,9 @@ class RodEMStep:
     def _body_frames(self):
         """T = blockdiag(D_n, D_n (x) I_3, I_6) per node: the unknowns' updates in the level's body frames
         (dr = D_n db, dD = D_n dB).  Newton solves T^T J T du = -T^T R: that matrix does not rotate with the rod
-        (J(Q z) = Q J(z) Q^T for a rigid turn Q), so a factorisation is reused across steps of a spinning rod as the
-        midpoint's body-frame unknowns are (docs/theory.md §9)."""
+        (J(Q z) = Q J(z) Q^T for a rigid turn Q; a dead tip torque, fixed in space, breaks this by O(h |T|)), so a
+        factorisation is reused across steps of a spinning rod as the midpoint's body-frame unknowns are
+        (docs/theory.md §9)."""
         D = self.D
         blk = np.zeros((self.N + 1, self.nv, self.nv))
         blk[:, :3, :3] = D

@@ -165,7 +165,8 @@ SCHEMA = MappingProxyType({
     ),
     "rod.load": (
         Key("force", "vec3", (0.0, 0.0, 0.0), "N", "dead force at s = L"),
-        Key("torque", "vec3", (0.0, 0.0, 0.0), "N m", "dead (spatial) torque at s = L, by Lagrange-d'Alembert"),
+        Key("torque", "vec3", (0.0, 0.0, 0.0), "N m", "dead (spatial) torque at s = L: by Lagrange-d'Alembert (midpoint), as tip director forces with its work summed "
+            "(energy-momentum)"),
     ),
     "environment": (
         Key("external_pressure", "float", None, "Pa", "uniform pressure outside the wall (default: the fluid's initial pressure, so the reference tube is in equilibrium; 0 without fluid)"),

@@ -32,7 +32,8 @@ wall, shock capturing and other non-conservative forces (a dead tip torque is co
 paper's measure.
 
 Newton (as :class:`varint.rod_em.RodEMStep`): chord iterations on a kept SuperLU factorisation of the Jacobian in the
-level's body frames (T^T J T: r, D and the labels' X turned by the directors, so the matrix survives a rigid turn),
+level's body frames (T^T J T: r, D and the labels' X turned by the directors, so the matrix survives a rigid turn;
+a dead tip torque breaks this by O(h |T|), and the chord still converges),
 refreshed when the contraction is slower than 1/2; the Jacobian by complex step with a colouring of its columns
 (the pattern by location from the stencils, :meth:`TubeEMStep._cliques`; ~110 batched residuals at 20 or 40
 elements with a liquid), each one checked against a random directional derivative in the same batch; a rigid
@@ -141,8 +142,26 @@ def _moment_dd(t0, t1, last):
     return dd * frac[..., None]
 
 
-def _moments(t):
-    return np.einsum("...p,qp->...q", _pows(_clip01(t), 1, 4), _MQ)
+def _clip_owned(t, last):
+    """t clipped to [0, 1] by its real part, where only the element that owns the point passes a complex step through
+    at its end: [0, 1) as ``_element_of``'s floor, [0, 1] on the ``last`` element.  A label exactly on a node sits at
+    t = 1 on one element and t = 0 on the next; passing the step through on both would count its derivative twice."""
+    re = np.real(t)
+    return np.where(re < 0.0, 0.0, np.where((re > 1.0) | ((re == 1.0) & ~np.asarray(last)), 1.0, t))
+
+
+def _moments(t, last):
+    """M_q(clip t), q = 0..3 (last axis); ``last``: the pair is on the last element (:func:`_clip_owned`)."""
+    return np.einsum("...p,qp->...q", _pows(_clip_owned(t, last), 1, 4), _MQ)
+
+
+def _over(s, ds):
+    """s/ds with its real part rounded as the real division's: numpy's complex division rounds the real part
+    differently (5.0 against 5.000000000000001 for 0.8333333333333334/0.16666666666666666), which would put a
+    complex-stepped label on a node in another branch than the real iterate (and than the compiled loops)."""
+    if np.iscomplexobj(s):
+        return np.real(s) / ds + 1j * (np.imag(s) / ds)
+    return s / ds
 
 
 def scalar_dd(f, df, x0, x1):
@@ -213,7 +232,7 @@ def label_weights(s, n_nodes, ds, elements=None):
     from its real part, or ``elements``)."""
     s = np.asarray(s)
     e = _element_of(s, ds, n_nodes - 1) if elements is None else elements
-    t = s / ds - e
+    t = _over(s, ds) - e
     rows = np.zeros(s.shape + (n_nodes + 2,), dtype=np.result_type(s, float))
     val = _cr(t)
     np.put_along_axis(rows, np.broadcast_to(e, s.shape)[..., None] + np.arange(4), val, -1)
@@ -243,13 +262,13 @@ def label_weights_dd(s0, s1, n_nodes, ds):
     dsv = np.where(same, 1.0, s1 - s0)
     # the piece on the first element: from s0 to s1 (same element) or to the element's end the step leaves by
     a = s0 / ds - e0
-    b = np.where(same, s1 / ds - e0, np.where(up, 1.0, 0.0))
+    b = np.where(same, _over(s1, ds) - e0, np.where(up, 1.0, 0.0))
     frac = np.where(same, 1.0 / ds, (b - a) / dsv)
     _scatter_basis(out, e0, _cr_dd(a, b) * frac[..., None])
     if not np.all(same):
         # the piece on the last element, from the end the step enters by to s1
         a = np.where(up, 0.0, 1.0)
-        b = s1 / ds - e1
+        b = _over(s1, ds) - e1
         frac = np.where(same, 0.0, (b - a) / dsv)
         _scatter_basis(out, e1, _cr_dd(a, b) * frac[..., None])
         for k in zip(*np.nonzero(np.abs(e1 - e0) > 1)):  # whole elements crossed in one step (rare)
@@ -457,9 +476,10 @@ class TubeEMStep:
         return self._volumes_on(s, R, gam, pk, pe)
 
     def _volumes_on(self, s, R, gam, pk, pe):
-        t_lo = s[..., pk] / self.ds - pe
-        t_hi = s[..., pk + 1] / self.ds - pe
-        S = _moments(t_hi) - _moments(t_lo)  # (.., npairs, 4)
+        t_lo = _over(s[..., pk], self.ds) - pe
+        t_hi = _over(s[..., pk + 1], self.ds) - pe
+        last = pe == self.N - 1
+        S = _moments(t_hi, last) - _moments(t_lo, last)  # (.., npairs, 4)
         Vp = self.ds * np.pi * np.sum(_triple(_ends(R, pe), _ends(gam, pe)) * S[..., _Q], (-3, -2, -1))
         return _scatter(Vp, pk, self.M)  # the pairs summed into their parcels
 
@@ -544,7 +564,7 @@ class TubeEMStep:
         if out is None:
             ds = self.ds
             tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
-            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe), S0=_moments(th0) - _moments(tl0),
+            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe), S0=_moments(th0, pe == self.N - 1) - _moments(tl0, pe == self.N - 1),
                        tl0=tl0, th0=th0, R0p=_ends(self.R, pe), G0p=_ends(lvl["gam0"], pe))
             lvl["pairs"][key] = out
         return out
@@ -591,11 +611,11 @@ class TubeEMStep:
         ds = self.ds
         # S parts (label coordinates) and their exact divided differences, per pair
         tl0, th0 = p0["tl0"], p0["th0"]
-        tl1, th1 = s1[..., pk] / ds - pe, s1[..., pk + 1] / ds - pe
+        tl1, th1 = _over(s1[..., pk], ds) - pe, _over(s1[..., pk + 1], ds) - pe
         S0 = p0["S0"]
-        S1 = _moments(th1) - _moments(tl1)
-        Sb = 0.5 * (S0 + S1)
         last = pe == self.N - 1
+        S1 = _moments(th1, last) - _moments(tl1, last)
+        Sb = 0.5 * (S0 + S1)
         ddh, ddl = _moment_dd(th0, th1, last), _moment_dd(tl0, tl1, last)
         # P_(ijl) = R_i R_j gamma_l on the pair's element (i, j, l in {0, 1}: its two nodes), q = i + j + l
         R0p, R1p = p0["R0p"], _ends(R1, pe)

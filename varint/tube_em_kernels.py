@@ -26,9 +26,21 @@ def _clip01(t):
 
 
 @njit(cache=True)
-def _moments(t, MQ, out):
-    """out[q] = M_q(clip t), q = 0..3."""
-    c = _clip01(t)
+def _clip_owned(t, last):
+    """t clipped to [0, 1] by its real part; at t = 1 a complex step passes only on the last element (the next
+    element owns a label on a node: tube_em._clip_owned)."""
+    re = t.real
+    if re < 0.0:
+        return 0.0 * t
+    if re > 1.0 or (re == 1.0 and not last):
+        return 1.0 + 0.0 * t
+    return t
+
+
+@njit(cache=True)
+def _moments(t, last, MQ, out):
+    """out[q] = M_q(clip t), q = 0..3 (tube_em._moments)."""
+    c = _clip_owned(t, last)
     c2 = c * c
     c3 = c2 * c
     c4 = c3 * c
@@ -65,8 +77,9 @@ def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
     for b in range(s.shape[0]):
         for p in range(pk.size):
             k, e = pk[p], pe[p]
-            _moments(s[b, k + 1] / ds - e, MQ, Sh)
-            _moments(s[b, k] / ds - e, MQ, Sl)
+            last = e == R.shape[1] - 2
+            _moments(s[b, k + 1] / ds - e, last, MQ, Sh)
+            _moments(s[b, k] / ds - e, last, MQ, Sl)
             acc = 0.0 * Sh[0]
             for i in range(2):
                 for j in range(2):
@@ -94,10 +107,10 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, ds, MQ, gs, gR, gg):
             last = e == N - 1
             tl0, th0 = s0[k] / ds - e, s0[k + 1] / ds - e
             tl1, th1 = s1[b, k] / ds - e, s1[b, k + 1] / ds - e
-            _moments(th0, MQ, S0h)
-            _moments(tl0, MQ, S0l)
-            _moments(th1, MQ, S1h)
-            _moments(tl1, MQ, S1l)
+            _moments(th0, last, MQ, S0h)
+            _moments(tl0, last, MQ, S0l)
+            _moments(th1, last, MQ, S1h)
+            _moments(tl1, last, MQ, S1l)
             for q in range(4):
                 Sb[q] = 0.5 * ((S0h[q] - S0l[q]) + (S1h[q] - S1l[q]))
             _moment_dd(th0 + 0.0 * th1, th1, last, MQ, ddh)
