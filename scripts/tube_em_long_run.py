@@ -9,8 +9,8 @@ least-squares slope of |dE| against time).
 --nodes N runs the same hose on N nodes (N - 1 parcels).  --save FILE writes the step's state (and the reference
 E0, K0, P0, J0) to FILE (.npz) every --every steps (and drops Newton's kept factorisation there, as a resumed run
 starts without one, so that the pieces are one run bit for bit); --resume FILE continues such a run where it stopped:
-a run of 10^5 steps (~2.5 h at 12 elements on one core) can be made in pieces.  Newton's counts (iterations,
-Jacobians, steps solved through halves) are those of the piece.
+a run of 10^5 steps (~1.5 h at 12 elements on one core since the compiled loops; 2.5-3 h before) can be made in
+pieces.  Newton's counts (iterations, Jacobians, steps solved through halves) are those of the piece.
 
 Run: OPENBLAS_NUM_THREADS=1 python scripts/tube_em_long_run.py [--steps 20000] [--every 100] [--nodes 13]
          [--save run.npz] [--resume run.npz]
