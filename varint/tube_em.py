@@ -164,6 +164,12 @@ def _over(s, ds):
     return s / ds
 
 
+def _batch_rows(x, batch, tail, dtype):
+    """x broadcast to the batch's shape ``batch + tail`` as contiguous rows (-1,) + tail of ``dtype`` (the compiled
+    loops' layout; no copy where x already is one)."""
+    return np.ascontiguousarray(np.broadcast_to(x, batch + tail), dtype=dtype).reshape((-1,) + tail)
+
+
 def scalar_dd(f, df, x0, x1):
     """(f(x1) - f(x0))/(x1 - x0), exact to round-off without cancellation: Gauss-Legendre (8 points) of f' where the
     relative change is below 5 % (error ~ (dx/x)^16), the difference quotient itself above."""
@@ -564,7 +570,9 @@ class TubeEMStep:
         if out is None:
             ds = self.ds
             tl0, th0 = self.s[pk] / ds - pe, self.s[pk + 1] / ds - pe
-            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe), S0=_moments(th0, pe == self.N - 1) - _moments(tl0, pe == self.N - 1),
+            last = pe == self.N - 1
+            out = dict(V0=self._volumes_on(self.s, self.R, lvl["gam0"], pk, pe),
+                       S0=np.ascontiguousarray(_moments(th0, last) - _moments(tl0, last)),
                        tl0=tl0, th0=th0, R0p=_ends(self.R, pe), G0p=_ends(lvl["gam0"], pe))
             lvl["pairs"][key] = out
         return out
@@ -583,9 +591,9 @@ class TubeEMStep:
         V0 = p0["V0"]
         b = s1.shape[:-1]
         if self.compiled:  # the per-pair loops compiled (varint/tube_em_kernels.py), on the batch's rows
-            dt = np.result_type(s1, R1, gam1)
-            rows = lambda x, n: np.ascontiguousarray(np.broadcast_to(x, b + (n,)), dtype=dt).reshape(-1, n)  # noqa: E731
-            s1r, R1r, g1r = rows(s1, self.M + 1), rows(R1, self.N + 1), rows(gam1, self.N + 1)
+            dt = np.result_type(s1, R1, gam1, z)  # the new level's quantities all come from z
+            s1r, R1r = _batch_rows(s1, b, (self.M + 1,), dt), _batch_rows(R1, b, (self.N + 1,), dt)
+            g1r = _batch_rows(gam1, b, (self.N + 1,), dt)
             V1 = np.empty((s1r.shape[0], self.M), dtype=dt)
             kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, _MQ, V1)
             V1 = V1.reshape(b + (self.M,))
@@ -601,11 +609,10 @@ class TubeEMStep:
         if self.incompressible:
             c = c - u["mu_liq"]
         if self.compiled:
-            dt = np.result_type(dt, c)
             B = s1r.shape[0]
             gs, gR, gg = np.empty((B, self.M + 1), dt), np.empty((B, self.N + 1), dt), np.empty((B, self.N + 1), dt)
-            kernels.pair_gradients(self.s, s1r.astype(dt), self.R, R1r.astype(dt), lvl["gam0"], g1r.astype(dt), pk, pe,
-                                   rows(c, self.M).astype(dt), self.ds, _MQ, gs, gR, gg)
+            kernels.pair_gradients(self.s, s1r, self.R, R1r, lvl["gam0"], g1r, pk, pe, _batch_rows(c, b, (self.M,), dt),
+                                   p0["S0"], self.ds, _MQ, gs, gR, gg)
             return self._fluid_out(V0, V1, c, gs.reshape(b + (-1,)), gR.reshape(b + (-1,)), gg.reshape(b + (-1,)))
         cp = c[..., pk]  # per pair
         ds = self.ds
@@ -681,8 +688,8 @@ class TubeEMStep:
         n1 = self.N + 1
         b = r1.shape[:-2]
         dt = np.result_type(r1, D1, stress)
-        rows = lambda x, tail: np.ascontiguousarray(np.broadcast_to(x, b + tail), dtype=dt).reshape((-1,) + tail)  # noqa: E731
-        r1r, D1r, str_r = rows(r1, (n1, 3)), rows(D1, (n1, 3, 3)), rows(stress, (self.N, 3))
+        r1r, D1r = _batch_rows(r1, b, (n1, 3), dt), _batch_rows(D1, b, (n1, 3, 3), dt)
+        str_r = _batch_rows(stress, b, (self.N, 3), dt)
         B = r1r.shape[0]
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
         kernels.rod_discrete_gradient(self.r, self.D, r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
@@ -692,9 +699,9 @@ class TubeEMStep:
         n1, K = self.N + 1, self.M - 1
         b = s1.shape[:-1]
         dt = np.result_type(nu, r1, D1, s1, X1)
-        rows = lambda x, tail: np.ascontiguousarray(np.broadcast_to(x, b + tail), dtype=dt).reshape((-1,) + tail)  # noqa: E731
-        r1r, D1r, s1r = rows(r1, (n1, 3)), rows(D1, (n1, 3, 3)), rows(s1, (self.M + 1,))
-        X1r, nur = rows(X1, (K, 3)), rows(nu, (K, 3))
+        r1r, D1r = _batch_rows(r1, b, (n1, 3), dt), _batch_rows(D1, b, (n1, 3, 3), dt)
+        s1r = _batch_rows(s1, b, (self.M + 1,), dt)
+        X1r, nur = _batch_rows(X1, b, (K, 3), dt), _batch_rows(nu, b, (K, 3), dt)
         B = r1r.shape[0]
         c1, Fs, FX = np.empty((B, K, 3), dt), np.empty((B, K), dt), np.empty((B, K, 3), dt)
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)

@@ -89,13 +89,14 @@ def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
 
 
 @njit(cache=True)
-def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, ds, MQ, gs, gR, gg):
-    """The discrete gradient of sum_k c_k V_k between the level (s0, R0, g0: real, 1-D) and each row of (s1, R1, g1)
-    with its coefficients c (B, M), per pair and scattered: gs (B, M+1) on all labels, gR (B, N+1) on the radii,
+def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
+    """The discrete gradient of sum_k c_k V_k between the level (s0, R0, g0: real, 1-D; S0 (npairs, 4) its pairs'
+    S_q, as tube_em's level cache keeps them) and each row of (s1, R1, g1) with its coefficients c (B, M), per pair
+    and scattered: gs (B, M+1) on all labels, gR (B, N+1) on the radii,
     gg (B, N+1) on the nodal stretches (tube_em.TubeEMStep.fluid_discrete_gradient's numpy path)."""
     N = R0.size - 1
     dt = gs.dtype
-    S0h, S0l, S1h, S1l = np.empty(4), np.empty(4), np.empty(4, dtype=dt), np.empty(4, dtype=dt)
+    S1h, S1l = np.empty(4, dtype=dt), np.empty(4, dtype=dt)
     ddh, ddl, Sb = np.empty(4, dtype=dt), np.empty(4, dtype=dt), np.empty(4, dtype=dt)
     gR_p, gG_p = np.empty(2, dtype=dt), np.empty(2, dtype=dt)
     gs[:] = 0.0
@@ -107,12 +108,10 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, ds, MQ, gs, gR, gg):
             last = e == N - 1
             tl0, th0 = s0[k] / ds - e, s0[k + 1] / ds - e
             tl1, th1 = s1[b, k] / ds - e, s1[b, k + 1] / ds - e
-            _moments(th0, last, MQ, S0h)
-            _moments(tl0, last, MQ, S0l)
             _moments(th1, last, MQ, S1h)
             _moments(tl1, last, MQ, S1l)
             for q in range(4):
-                Sb[q] = 0.5 * ((S0h[q] - S0l[q]) + (S1h[q] - S1l[q]))
+                Sb[q] = 0.5 * (S0[p, q] + (S1h[q] - S1l[q]))
             _moment_dd(th0 + 0.0 * th1, th1, last, MQ, ddh)
             _moment_dd(tl0 + 0.0 * tl1, tl1, last, MQ, ddl)
             g_hi = 0.0 * Sb[0]
