@@ -334,6 +334,7 @@ def test_sagging_liquid_cantilever_has_the_hydrostatic_pressure(wall):
     assert errs[1] < 5e-4 and math.log2(errs[0] / errs[1]) > 1.8
 
 
+@pytest.mark.slow  # 0.4-0.8 min: the slow tier (tests/conftest.py; CI runs it)
 def test_pressurised_gas_tube_prestretch_and_modes_about_it():
     """A closed clamped-free tube of gas at p_0 = 2 bar in 1 bar outside.  Static: the rod stretches uniformly by
     eps, EA eps = (p_0 (1 + eps)^-gamma - p_ext) A (the end caps' thrust; scalar root), to 1e-12.  Modes about that

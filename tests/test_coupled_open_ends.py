@@ -80,6 +80,7 @@ def test_a_straight_pipe_with_steady_flow_stays_straight_and_its_balances_close(
     assert mon["constraint_residual"] < 1e-12
 
 
+@pytest.mark.slow  # 0.4-0.8 min: the slow tier (tests/conftest.py; CI runs it)
 def test_pinned_pinned_pipe_is_bounded_below_u_pi_and_diverges_above():
     """Païdoussis' pinned-pinned pipe loses stability by divergence at u = pi (pipe_stability, truth): at 0.9 pi a
     small kick stays bounded (a neutral oscillation), at 1.1 pi it grows exponentially, at the rate of the

@@ -221,6 +221,7 @@ def _bending(freqs, targets):
 
 
 @pytest.mark.validation
+@pytest.mark.slow  # 0.4-0.8 min: the slow tier (tests/conftest.py; CI runs it)
 def test_cantilever_frequencies_against_timoshenko_and_euler_bernoulli_order_two():
     from varint.analysis import euler_bernoulli_cantilever, timoshenko_cantilever
 

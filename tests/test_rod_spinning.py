@@ -292,6 +292,7 @@ def test_a_run_started_in_the_steady_rotation_stays_in_it():
     assert wobble[0] < 2e-3 and wobble[0] / wobble[1] == pytest.approx(4.0, rel=0.15), wobble  # (W h)^2 = 1.6e-3
 
 
+@pytest.mark.slow  # 0.4-0.8 min: the slow tier (tests/conftest.py; CI runs it)
 def test_cli_static_and_modes_of_a_spinning_rod(tmp_path, capsys):
     """`varint static` writes the steady rotation (with its momenta); `modes --about static` uses it."""
     import h5py
