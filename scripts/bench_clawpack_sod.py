@@ -20,7 +20,7 @@ swapped from N to N, so that slow drifts of the machine's load hit both):
   initial data, and numba compilation / the f2py import (a warm-up run at N = 20) are excluded); best
   of up to 5 repeats while the repeats add up to < 0.5 s (so only the fast small-N runs are repeated).
   The process is pinned to one core and numba / BLAS / OpenMP to one thread.
-* density L1 error against the exact Riemann solution (varint.shocks.RiemannSolution), the same
+* density L1 error against the exact Riemann solution (varint.exact.shocks.RiemannSolution), the same
   sampling for both: each solution piecewise constant on its own cells (PyClaw) or parcels (varint),
   |rho - exact| integrated on 400 000 equal sub-intervals of [0, 1]
   (``shock_tube_convergence.density_l1``);
@@ -61,7 +61,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from shock_tube_convergence import CASES, GAMMA, contact_cells, density_l1, scene_text  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.shocks import RiemannSolution  # noqa: E402
+from varint.exact.shocks import RiemannSolution  # noqa: E402
 
 PYCLAW_CFL = 0.9
 VARINT_CFL = 0.5

@@ -1,4 +1,4 @@
-"""Cost of the coupled tube's fluid kernels (varint/coupled_terms.py, docs/theory.md §10.9) and of a whole
+"""Cost of the coupled tube's fluid kernels (varint/terms/coupled.py, docs/theory.md §10.9) and of a whole
 coupled step (docs/performance.md).
 
 * kernels: ``fluid_potential_step`` (gradient only, and with its Newton block) and ``fluid_kinetic_chart``
@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from varint.coupled_terms import FluidPotential, fluid_kinetic_chart, fluid_potential_step
-from varint.lie import cay
-from varint.thermo import IdealGas
+from varint.terms.coupled import FluidPotential, fluid_kinetic_chart, fluid_potential_step
+from varint.lattice.lie import cay
+from varint.terms.thermo import IdealGas
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -105,20 +105,20 @@ def bench_kernels(sizes, kinds):
 
 class _reference_path:
     """Within the block, the step term calls the NumPy reference (``fast=False``): the whole step as before
-    the compiled kernels.  varint/step_terms.py imports the kernels at call time, so patching the module
+    the compiled kernels.  varint/terms/step.py imports the kernels at call time, so patching the module
     attributes reaches it."""
 
     def __enter__(self):
         import functools
 
-        import varint.coupled_terms as ct
+        import varint.terms.coupled as ct
 
         self.saved = ct.fluid_potential_step, ct.fluid_kinetic_chart
         ct.fluid_potential_step = functools.partial(self.saved[0], fast=False)
         ct.fluid_kinetic_chart = functools.partial(self.saved[1], fast=False)
 
     def __exit__(self, *exc):
-        import varint.coupled_terms as ct
+        import varint.terms.coupled as ct
 
         ct.fluid_potential_step, ct.fluid_kinetic_chart = self.saved
 
@@ -131,7 +131,7 @@ def bench_steps(elements, n_steps):
     sys_path = ROOT / "tests"
     import sys
     sys.path.insert(0, str(sys_path))
-    from helpers import to_toml
+    from varint.scene.text import to_toml
 
     base = tomllib.loads((ROOT / "examples" / "water_filled_hose.toml").read_text())
     print(f"\nwhole coupled step, examples/water_filled_hose.toml scaled (mean of {n_steps} steps after one, ms)")

@@ -4,7 +4,7 @@
    M + m = 1; the inextensible rod, planar), 10 ... 160 elements with as many parcels, the step set so the inlet moves
    0.4 of a parcel per step (the lattice changes every 2.5 steps: the step, its Newton factor and the kinetic metric
    are rebuilt then).  The cheapest of ``--repeat`` blocks of ``--steps`` steps after a warm-up.
-2. A threshold two ways: varint.flowing_modes.threshold (bisection on the sign of the largest growth rate of the
+2. A threshold two ways: varint.analysis.thresholds.threshold (bisection on the sign of the largest growth rate of the
    linearisation) against finding it by runs (one kicked run of 1.45 s per bisection point, its growth rate fitted from
    the tip's peaks; the run's cost is measured once and multiplied by the bisection count of the same tolerance).
 
@@ -25,11 +25,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from varint.flowing_modes import threshold  # noqa: E402
-from varint.model import build_model  # noqa: E402
-from varint.pipe_scenes import pipe_scene_text  # noqa: E402
-from varint.scene import parse_scene  # noqa: E402
-from varint.stepper import Simulation  # noqa: E402
+from varint.analysis.thresholds import threshold  # noqa: E402
+from varint.model.model import build_model  # noqa: E402
+from varint.scene.standard import pipe_scene_text  # noqa: E402
+from varint.scene.schema import parse_scene  # noqa: E402
+from varint.run.simulation import Simulation  # noqa: E402
 
 BETA = 0.2
 

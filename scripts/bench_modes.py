@@ -17,12 +17,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import gas_scene, make  # noqa: E402
+from varint.scene.standard import gas_scene  # noqa: E402
+from helpers import make  # noqa: E402
 from test_rod import rod_scene, solid_section  # noqa: E402
 
 from varint import build_model  # noqa: E402
-from varint.analysis import modes, timoshenko_cantilever  # noqa: E402
-from varint.rod_statics import rod_modes  # noqa: E402
+from varint.analysis.linear import modes  # noqa: E402
+from varint.exact.beams import timoshenko_cantilever  # noqa: E402
+from varint.analysis.rod_modes import rod_modes  # noqa: E402
 
 
 def best_of(fn, repeat=3):

@@ -23,12 +23,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import to_toml, zero_crossing_frequency  # noqa: E402
+from varint.scene.text import to_toml  # noqa: E402
+from varint.analysis.signals import zero_crossing_frequency  # noqa: E402
 from test_rod import solid_section  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.analysis import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
-from varint.lie import cay  # noqa: E402
+from varint.exact.beams import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
+from varint.lattice.lie import cay  # noqa: E402
 
 L, RAD, RHO, N_EL, TIP = 1.0, 0.01, 1000.0, 100, 0.01
 
@@ -74,7 +75,7 @@ def varint_run(E, h, periods, w_ref):
     for i in range(n):
         sim.step()
         t[i] = sim.state.t
-        tip[i] = sim.state.q[model.rod_q][3 * N_EL + 1]  # y of the tip node (layout: varint.model)
+        tip[i] = sim.state.q[model.rod_q][3 * N_EL + 1]  # y of the tip node (layout: varint.model.model)
         E_[i] = sim.monitors()["energy"]
     wall = time.perf_counter() - t0
     return t, tip, E_, wall, sim.stats.total_iterations / n

@@ -3,7 +3,7 @@ finite-difference one, side by side in one run (docs/performance.md, "Exact rod 
 
 * one Jacobian: ``sim.scheme.jacobian`` (the rod term's element blocks by complex step of the analytic
   element gradient, assembled) against :func:`jacobian_fd` (colour-grouped central differences of
-  the residual, the 0.1 path, rebuilt here with ``varint.rod.banded_jacobian``), and one residual (analytic gradient against the complex step of the
+  the residual, the 0.1 path, rebuilt here with ``varint.terms.rod.banded_jacobian``), and one residual (analytic gradient against the complex step of the
   whole L_d), at 10 and 100 elements, planar and 3D;
 * a rod step at 100 elements: the 0.1 path (complex-step residual, finite-difference Jacobian)
   against the exact one, on the planar PyElastica cantilever (scripts/bench_pyelastica.py's section,
@@ -25,9 +25,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_rod import SPIN, STIFF, rod_scene, solid_section  # noqa: E402
 
-import varint.stepper as vs  # noqa: E402
+import varint.run.simulation as vs  # noqa: E402
 from varint import Simulation, build_model  # noqa: E402
-from varint.rod import RATE_REFRESH_ROD, banded_jacobian  # noqa: E402
+from varint.terms.rod import RATE_REFRESH_ROD, banded_jacobian  # noqa: E402
 
 
 def best_of(fn, repeat=5):
@@ -105,7 +105,7 @@ def step_table(steps=200):
     print("|---|---|---|---|---|---|")
     paths = (("0.1: CS residual, FD Jacobian, refresh rate 0.5", True, 0.5), ("exact, refresh rate 0.5", False, 0.5),
              (f"exact, refresh rate {RATE_REFRESH_ROD} (default)", False, RATE_REFRESH_ROD))
-    # the stepper reads its own binding of the rate (imported from varint.rod): swap that one
+    # the stepper reads its own binding of the rate (imported from varint.terms.rod): swap that one
     default_rate = vs.RATE_REFRESH_ROD
     for name, scene in scenes(100).items():
         out = {}
@@ -135,7 +135,7 @@ def noise_table():
     by Cholesky of the exact K: the largest eigenvalues of K^-1 are the accurate ones)."""
     import scipy.linalg as sla
 
-    from varint.rod_statics import _force_jacobian, _force_map, lumped_mass
+    from varint.model.statics import force_jacobian, force_map, lumped_mass
 
     print()
     print("| cantilever, 100 elements | L/r | entry noise of the FD stiffness | shift of w1^2 | shift of w2^2 | shift of w3^2 |")
@@ -145,8 +145,8 @@ def noise_table():
             model = build_model(rod_scene(nodes=101, dimension=dim, section=solid_section(rad=rad), ends=("clamped", "free")))
             rod = model.rod
             M = lumped_mass(rod)[rod.mask]
-            Kfd = -banded_jacobian(_force_map(rod, rod.Lam0, rod.r0), np.zeros(rod.nz), rod.mask, rod.ds).toarray()
-            Kex = -_force_jacobian(rod, rod.Lam0, rod.r0).toarray()
+            Kfd = -banded_jacobian(force_map(rod, rod.Lam0, rod.r0), np.zeros(rod.nz), rod.mask, rod.ds).toarray()
+            Kex = -force_jacobian(rod, rod.Lam0, rod.r0).toarray()
             Kfd, Kex = 0.5 * (Kfd + Kfd.T), 0.5 * (Kex + Kex.T)
             Mh = np.sqrt(M)
             C = Mh[:, None] * sla.cho_solve(sla.cho_factor(Kex), np.diag(Mh))

@@ -1,4 +1,4 @@
-"""The compiled rod step (varint/rod_step_fast.py) against the stepper (Simulation.step) and PyElastica's step.
+"""The compiled rod step (varint/schemes/rod_compiled.py) against the stepper (Simulation.step) and PyElastica's step.
 
 Case: PyElastica's benchmark cantilever (scripts/bench_pyelastica.py: L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3,
 E = 1e6 Pa, G = E/1.5), released from the first Euler-Bernoulli mode shape with a 1 cm tip deflection, at the step
@@ -30,12 +30,12 @@ sys.path.insert(0, str(ROOT.parent / "tests"))
 
 import bench_pyelastica  # noqa: E402
 from bench_pyelastica import L, N_EL, RAD, RHO, mode_shape, reference  # noqa: E402
-from helpers import to_toml  # noqa: E402
+from varint.scene.text import to_toml  # noqa: E402
 from test_rod import solid_section  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.lie import cay  # noqa: E402
-from varint.rod_step_fast import FastRodStep  # noqa: E402
+from varint.lattice.lie import cay  # noqa: E402
+from varint.schemes.rod_compiled import FastRodStep  # noqa: E402
 
 E = 1e6
 
@@ -66,7 +66,7 @@ def _blocks(n):
 
 def run_old(model, n):
     sim = Simulation(model)
-    sim._fast = None  # the general path (Step + varint.newton), which Simulation used for the rod before the hook
+    sim._fast = None  # the general path (Step + varint.schemes.newton), which Simulation used for the rod before the hook
     sim.step()  # compiled kernels, first Jacobian
     its = jacs = 0
     best = math.inf

@@ -4,9 +4,9 @@ The earlier version of the step's module is read from git (``git show REV:varint
 current package (its relative imports pointed at ``varint``), so both run on the same machine load: the ratio is fair
 on a shared machine, the absolute times are not.
 
-  --which em    varint/rod_em.py (RodEMStep): the hard cases of docs/theory.md §12 (scripts/rod_constraint_hard_cases.py
+  --which em    varint/schemes/em_rod.py (RodEMStep): the hard cases of docs/theory.md §12 (scripts/rod_constraint_hard_cases.py
                 CASES; 3D, N = 50) at 5 ms, 150 steps per block
-  --which fast  varint/rod_step_fast.py (FastRodStep): PyElastica's cantilever (scripts/bench_rod_step_fast.py) at
+  --which fast  varint/schemes/rod_compiled.py (FastRodStep): PyElastica's cantilever (scripts/bench_rod_step_fast.py) at
                 64 steps per first period, 100 and 1000 elements, planar and 3D
 
 Run:  python scripts/bench_rod_step_vs_commit.py --which em --rev fed81a8     (before session 7's EM speed-ups)
@@ -59,7 +59,7 @@ def bench_em(rev, rounds):
     from rod_constraint_hard_cases import CASES
     from rod_stiff_diagnosis import make
 
-    from varint.rod_em import RodEMStep
+    from varint.schemes.em_rod import RodEMStep
 
     old = module_at(rev, "rod_em")
     print("| case | now ms/step | at " + rev + " ms/step | ratio |\n|---|---|---|---|")
@@ -79,7 +79,7 @@ def bench_fast(rev, rounds):
     from bench_pyelastica import reference
     from bench_rod_step_fast import E, cantilever
 
-    from varint.rod_step_fast import FastRodStep
+    from varint.schemes.rod_compiled import FastRodStep
 
     old = module_at(rev, "rod_step_fast")
     T1 = 2 * math.pi / reference(E)

@@ -2,8 +2,8 @@
 
 Case: PyElastica's benchmark cantilever (scripts/bench_pyelastica.py: L = 1 m, solid radius 1 cm, rho = 1000 kg/m^3,
 E = 1e6 Pa, G = E/1.5), planar, released from the first mode shape.  varint at h = T1/64 (64 steps per first period):
-"before" is the general stepper path (Step + varint.newton, which Simulation used for rod-only scenes before the
-compiled step), "after" the compiled rod step (varint/rod_step_fast.py FastRodStep, which Simulation takes now).
+"before" is the general stepper path (Step + varint.schemes.newton, which Simulation used for rod-only scenes before the
+compiled step), "after" the compiled rod step (varint/schemes/rod_compiled.py FastRodStep, which Simulation takes now).
 PyElastica: PositionVerlet at half its largest stable step at each resolution (found by bisection on 3000-step runs;
 the cost per step does not depend on the step).  The three are timed in alternating blocks (PyElastica 2000 steps,
 varint 50-200 steps), the cheapest block of ROUNDS each: the three see the same machine load, so the ratios are
@@ -26,7 +26,7 @@ from bench_pyelastica import largest_stable_dt, pyelastica_stepper, reference  #
 from bench_rod_step_fast import cantilever  # noqa: E402
 
 from varint import Simulation  # noqa: E402
-from varint.rod_step_fast import FastRodStep  # noqa: E402
+from varint.schemes.rod_compiled import FastRodStep  # noqa: E402
 
 E = 1e6
 

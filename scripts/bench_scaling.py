@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from helpers import gas_scene, make  # noqa: E402
+from varint.scene.standard import gas_scene  # noqa: E402
+from helpers import make  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 

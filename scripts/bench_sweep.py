@@ -18,7 +18,7 @@ import sys
 import tempfile
 import time
 
-from varint.pipe_scenes import pipe_scene_text
+from varint.scene.standard import pipe_scene_text
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

@@ -1,4 +1,4 @@
-"""The coupled tube's energy-momentum step (varint/tube_em.py, TubeEMStep) now against the same step at an earlier
+"""The coupled tube's energy-momentum step (varint/schemes/em_tube.py, TubeEMStep) now against the same step at an earlier
 commit, in alternating blocks of one process (as scripts/bench_rod_step_vs_commit.py does for the rod).
 
 Cases: the garden hose of scripts/tube_em_hard_cases.py (free, arc released spinning, dynamic linear wall) with
@@ -40,7 +40,7 @@ def main():
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--cases", default="")
     args = ap.parse_args()
-    from varint.tube_em import TubeEMStep
+    from varint.schemes.em_tube import TubeEMStep
 
     if args.frames:
         classes = (("now", TubeEMStep), ("then", lambda m, h: TubeEMStep(m, h, body=False)))

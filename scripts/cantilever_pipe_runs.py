@@ -1,7 +1,7 @@
 """Kicked runs of the cantilevered pipe conveying liquid (open ends on the coupled tube, docs/theory.md §13) at 0.93
-and 1.07 of its flutter threshold u_cr(beta) from varint.pipe_stability (Païdoussis eq. 3.70, independent truth),
+and 1.07 of its flutter threshold u_cr(beta) from varint.exact.pipe_stability (Païdoussis eq. 3.70, independent truth),
 for the mass ratios beta of the issue: the run's growth rate (log-linear fit of the tip's peaks) against
-varint.flowing_modes' (a cross-check).  The pipe of tests/test_coupled_open_ends.py (EI = 1, L = 1, M + m = 1,
+varint.analysis.flowing_modes' (a cross-check).  The pipe of tests/test_coupled_open_ends.py (EI = 1, L = 1, M + m = 1,
 inextensible rod, 20 elements) at that beta.  Numbers in docs/validation.md.
 
     python scripts/cantilever_pipe_runs.py [--betas 0.1,0.2,0.5,0.8] [--h 1.8e-3] [--periods 8] [--parcels-per-element 2]
@@ -11,14 +11,14 @@ import argparse
 
 import numpy as np
 
-from varint import pipe_stability as ps
-from varint.analysis import peak_growth_rate
+from varint.exact import pipe_stability as ps
+from varint.analysis.signals import peak_growth_rate
 from varint.errors import VarintError
-from varint.model import build_model
-from varint.modes_api import scene_modes
-from varint.pipe_scenes import pipe_scene_text
-from varint.scene import parse_scene
-from varint.stepper import Simulation
+from varint.model.model import build_model
+from varint.analysis.modes import scene_modes
+from varint.scene.standard import pipe_scene_text
+from varint.scene.schema import parse_scene
+from varint.run.simulation import Simulation
 
 ENDS = ("clamped", "free")
 
@@ -35,7 +35,7 @@ def tip_history(scene, T):
 
 
 def modes_rate(beta, u, nodes):
-    """The largest growth rate of varint.flowing_modes on the same lattice (the nearly inextensible rod)."""
+    """The largest growth rate of varint.analysis.flowing_modes on the same lattice (the nearly inextensible rod)."""
     d = scene_modes(parse_scene(pipe_scene_text(ENDS, beta, u, nodes, constraint="none")), count=6)
     return max(m["growth_rate"] for m in d["modes"])
 

@@ -4,7 +4,7 @@
 Sod's data (1, 0, 1) | (0.125, 0, 0.1) in a free rod-borne tube of 1 m and 1 m^2 (p_ext = 0), bent (body
 curvature (0, 1, 0.5) 1/m), spinning at 2 rad/s about z and translating at (0.3, -0.2, 0.1) m/s: the tube's points
 move at up to ~1 m/s, near the gas's sound speed (1.18 m/s).  [shock_capturing] with its defaults.  The run is
-written every step around t = 0.15 s and varint.shocks.measure_coupled_shock reads the states 4 parcels either side
+written every step around t = 0.15 s and varint.analysis.shock_measure.measure_coupled_shock reads the states 4 parcels either side
 of the captured shock (Gamma, gam from the rod's fields, u = ds/dt, rho, p) and evaluates the generalised
 conditions RH_mass, RH_momentum, RH_energy.  Also printed: energy error (rod + gas + heat) against the viscous
 work, momenta drift, entropy monotonicity.
@@ -23,10 +23,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.io import RunWriter  # noqa: E402
-from varint.shocks import measure_coupled_shock  # noqa: E402
+from varint.run.io import RunWriter  # noqa: E402
+from varint.analysis.shock_measure import measure_coupled_shock  # noqa: E402
 
-from helpers import to_toml  # noqa: E402
+from varint.scene.text import to_toml  # noqa: E402
 from test_coupled_shock_capturing import BENT_SPINNING, GAMMA, SOD, coupled_sod  # noqa: E402
 
 T_MEASURE = 0.15

@@ -1,9 +1,9 @@
-"""The measured thresholds of ``varint modes`` on tubes conveying fluid (varint/flowing_modes.py) against
-varint/pipe_stability.py (Païdoussis eq. 3.70 by Galerkin, 40 beam modes), at 20 / 40 / 80 elements, with the
+"""The measured thresholds of ``varint modes`` on tubes conveying fluid (varint/analysis/flowing_modes.py) against
+varint/exact/pipe_stability.py (Païdoussis eq. 3.70 by Galerkin, 40 beam modes), at 20 / 40 / 80 elements, with the
 order of the error: the table of docs/validation.md ("Tubes conveying fluid").
 
 The pipes are those of tests/test_flowing_modes.py (L = 1, EI = 1, M + m = 1, EA = kGA = 1e7, planar rod); the
-thresholds come from varint.flowing_modes.threshold (bisection on the largest growth rate over fluid.velocity).
+thresholds come from varint.analysis.thresholds.threshold (bisection on the largest growth rate over fluid.velocity).
 
     python scripts/flowing_modes_validation.py [--nodes 21,41,81]
 """
@@ -15,10 +15,10 @@ import time
 import numpy as np
 
 
-from varint.pipe_scenes import pipe_scene_text as pipe_text  # noqa: E402
+from varint.scene.standard import pipe_scene_text as pipe_text  # noqa: E402
 
-from varint import pipe_stability as ps  # noqa: E402
-from varint.flowing_modes import threshold  # noqa: E402
+from varint.exact import pipe_stability as ps  # noqa: E402
+from varint.analysis.thresholds import threshold  # noqa: E402
 
 CASES = [  # (name, ends, beta, gamma)
     ("pinned-pinned", ("pinned", "pinned"), 0.5, 0.0),

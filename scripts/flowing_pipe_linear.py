@@ -12,7 +12,7 @@ s_k = s_k0 + U t only enter through the Catmull–Rom weights N_i(s_k), and aver
 (labels uniform) the fluid contributes M int N N^T (mass), the gyroscopic M U int (N N'^T - N' N^T) and the
 centrifugal -M U^2 int N' N'^T; the rod is the periodic Timoshenko lattice of §9 linearised (Gamma_2 =
 (w_{j+1} - w_j)/ds - (psi_j + psi_{j+1})/2, Omega = (psi_{j+1} - psi_j)/ds, lumped masses).  Its eigenvalues
-are compared with varint.analysis.flowing_pipe_waves (the continuum) and with the two-exponential fit of a
+are compared with varint.exact.beams.flowing_pipe_waves (the continuum) and with the two-exponential fit of a
 varint run.
 """
 
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 
-from varint.analysis import flowing_pipe_critical_speed, flowing_pipe_waves  # noqa: E402
+from varint.exact.beams import flowing_pipe_critical_speed, flowing_pipe_waves  # noqa: E402
 
 EI, KGA, RHOA, RHOI, M = 1.0, 400.0, 1.0, 1e-4, 1.0
 K = 2.0 * math.pi
@@ -158,7 +158,7 @@ def saturation():
 
 def _scene(U, nodes, parcels, h, steps, E=2e11, wall_model="quasistatic", fluid="incompressible"):
     import test_flowing_pipe as T
-    from helpers import to_toml
+    from varint.scene.text import to_toml
     from varint import parse_scene
 
     d = {"title": "periodic flowing pipe", "tube": {"length": 1.0, "nodes": nodes, "radius": T.RADIUS},

@@ -1,7 +1,7 @@
 """The garden hose's hard case (issue 9): above its flutter threshold the hanging hose whips into finite amplitude.
 
 Runs examples/garden_hose.toml (or the scene given) for a number of flutter periods, writing a run file that
-`varint plot --animate` draws, and reports: the hose's flutter threshold from varint.pipe_stability (Païdoussis
+`varint plot --animate` draws, and reports: the hose's flutter threshold from varint.exact.pipe_stability (Païdoussis
 eq. 3.70 with gravity: beta, gamma and u_cr computed from the scene's EI, masses, length and gravity), the number of
 periods run (sign changes of the tip's sideways displacement), the tip's amplitude over the run, whether any value
 became NaN, the largest constraint residuals (the inextensible rod's, the liquid's volumes) and the balances
@@ -25,9 +25,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import varint  # noqa: E402
-from varint import pipe_stability as ps  # noqa: E402
-from varint.io import read_run  # noqa: E402
-from varint.model import build_model  # noqa: E402
+from varint.exact import pipe_stability as ps  # noqa: E402
+from varint.run.io import read_run  # noqa: E402
+from varint.model.model import build_model  # noqa: E402
 
 
 def threshold_of(scene):

@@ -1,5 +1,5 @@
 """The stability diagram of the cantilevered pipe conveying fluid, u_cr(beta), from one ``varint sweep --analysis
-modes`` against varint/pipe_stability.py (Païdoussis eq. 3.70; Gregory & Païdoussis 1966): docs/validation.md,
+modes`` against varint/exact/pipe_stability.py (Païdoussis eq. 3.70; Gregory & Païdoussis 1966): docs/validation.md,
 docs/pipe_stability_diagram.png.
 
 The scene is the pipe of tests/test_flowing_modes.py (L = 1, EI = 1, nearly inextensible, planar, 40 elements)
@@ -29,9 +29,9 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
-from varint.pipe_scenes import pipe_scene_text as pipe_text  # noqa: E402
+from varint.scene.standard import pipe_scene_text as pipe_text  # noqa: E402
 
-from varint import pipe_stability as ps  # noqa: E402
+from varint.exact import pipe_stability as ps  # noqa: E402
 
 M_FLUID = 0.5
 

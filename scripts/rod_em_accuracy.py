@@ -20,8 +20,8 @@ from rod_stiff_diagnosis import make  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 from varint.errors import SolverError  # noqa: E402
-from varint.rod import unpack_level  # noqa: E402
-from varint.rod_em import RodEMStep  # noqa: E402
+from varint.terms.rod import unpack_level  # noqa: E402
+from varint.schemes.em_rod import RodEMStep  # noqa: E402
 
 T = 1.0
 

@@ -1,4 +1,4 @@
-"""The hard cases of docs/theory.md §12 / §9a with the energy-momentum step (docs/theory.md §12a, varint/rod_em.py).
+"""The hard cases of docs/theory.md §12 / §9a with the energy-momentum step (docs/theory.md §12a, varint/schemes/em_rod.py).
 
 PyElastica's benchmark section (solid, r = 1 cm, E = 1 MPa), free, released from an arc while spinning.  The
 midpoint rod blows up at h = 4-5 ms (and 8 ms for some); the energy-momentum step should run at every step with the
@@ -28,7 +28,7 @@ from rod_stiff_diagnosis import make  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 from varint.errors import SolverError  # noqa: E402
-from varint.rod_em import CHI, RodEMStep, strains  # noqa: E402
+from varint.schemes.em_rod import CHI, RodEMStep, strains  # noqa: E402
 
 
 def run_em(model, h, steps, every=1, progress=0):

@@ -36,7 +36,7 @@ from bench_pyelastica import reference  # noqa: E402
 from bench_rod_step_fast import E, cantilever  # noqa: E402
 
 from varint import Simulation  # noqa: E402
-from varint.rod_step_fast import FastRodStep, _k_band_solve  # noqa: E402
+from varint.schemes.rod_compiled import FastRodStep, _k_band_solve  # noqa: E402
 
 T1 = 2 * math.pi / reference(E)
 

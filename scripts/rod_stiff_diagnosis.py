@@ -22,8 +22,9 @@ import scipy.linalg as sla
 
 from varint import Simulation, build_model, parse_scene
 from varint.errors import SolverError
-from varint.rod import unpack_level
-from varint.rod_statics import rod_modes
+from varint.terms.rod import unpack_level
+from varint.analysis.rod_modes import rod_modes
+from varint.scene.text import to_toml
 
 N = 50
 H_BAND = 5e-3  # inside the worst band of the base case
@@ -41,23 +42,6 @@ def section(radius=0.01, E=1e6, rho=1000.0, inertia_factor=1.0, shear_factor=1.0
                 shear_stiffness=shear_factor * kshear * G * A)
 
 
-def _toml(d):
-    def val(v):
-        if isinstance(v, str):
-            return f'"{v}"'
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(val(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {val(x)}" for k, x in v.items()) + " }"
-        return repr(float(v)) if isinstance(v, float) else str(v)
-
-    out = ['title = "stiff diagnosis"']
-    for s, body in d.items():
-        out.append(f"[{s}]")
-        out += [f"{k} = {val(v)}" for k, v in body.items()]
-    return "\n".join(out)
-
-
 def make(n=N, h=H_BAND, sec=None, curvature=(0, 0, 2.0), spin=(0, 0, 2.0), dim=2, constraint="none"):
     rod = dict(sec or section(), dimension=dim, ends={"s0": "free", "sL": "free"}, constraint=constraint)
     ini = {}
@@ -67,8 +51,9 @@ def make(n=N, h=H_BAND, sec=None, curvature=(0, 0, 2.0), spin=(0, 0, 2.0), dim=2
         ini["angular_velocity"] = [float(c) for c in spin]
     d = {"tube": {"length": 1.0, "nodes": n + 1, "radius": 0.01}, "rod": rod, "time": {"step": h, "end": 1.0}}
     if ini:
-        d["rod.initial"] = ini
-    return build_model(parse_scene(_toml(d)))
+        rod["initial"] = ini
+    d["title"] = "stiff diagnosis"
+    return build_model(parse_scene(to_toml(d)))
 
 
 def run(model, h, steps, stop=10.0, on_step=None):

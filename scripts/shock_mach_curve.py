@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from varint import shocks as S
+from varint.exact import shocks as S
 
 PAPER = dict(R0=0.05, beta1=1.14e5, beta2=8.37e5, a=0.4782, p_ext=101325.0, rho=1.225, p=101325.0, gamma=1.4)
 OUT = Path(__file__).resolve().parent.parent / "docs" / "shock_mach.png"

@@ -1,4 +1,4 @@
-"""Shock tubes with [shock_capturing] against the exact Riemann solution (varint.shocks.RiemannSolution).
+"""Shock tubes with [shock_capturing] against the exact Riemann solution (varint.exact.shocks.RiemannSolution).
 
 Sod, (rho, u, p) = (1, 0, 1) | (0.125, 0, 0.1) at t = 0.2, and two strong tubes (pressure ratios 100 and
 1e5, the latter Toro's test 3 at t = 0.012) on [0, 1], diaphragm at 0.5, closed ends (no wave reaches
@@ -7,7 +7,7 @@ parcels: the density's L1 error, the observed rate between successive N, the wal
 (model building and the first numba compilation excluded), the relative energy error at the end, the
 minimum density and pressure, and the Newton iterations per step.  Prints a markdown table.
 
-Parcels have equal length at t = 0 (that is how varint.tube places the labels): each side of the
+Parcels have equal length at t = 0 (that is how varint.terms.tube places the labels): each side of the
 diaphragm is resolved by N/2 parcels, whatever its density.
 
 Run:  python scripts/shock_tube_convergence.py [--cases sod,ratio100,ratio1e5] [--max 3200] [--cfl 0.5] [--limiter]
@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from varint import Simulation, build_model, parse_scene
-from varint.shocks import RiemannSolution
+from varint.exact.shocks import RiemannSolution
 
 GAMMA = 1.4
 CASES = {
@@ -99,7 +99,7 @@ def run(case, M, cfl=0.5, cQ=1.0, cL=0.5, limiter=False):
     left, right, end = CASES[case]
     text, n = scene_text(M, left, right, end, cfl, cQ, cL)
     model = build_model(parse_scene(text))
-    model.forces[0].limiter = limiter  # Christensen's limiter (varint.shock_capturing.limited)
+    model.forces[0].limiter = limiter  # Christensen's limiter (varint.terms.shock_capturing.limited)
     sim = Simulation(model)
     E0 = sim.monitors()["energy"]
     t0 = time.perf_counter()

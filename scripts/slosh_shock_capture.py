@@ -7,13 +7,13 @@ creeps (docs/validation.md): the wave steepens towards shocks.  With [shock_capt
 
 * total energy (gas and wall kinetic, internal, wall elastic, p_ext Vol) each step, relative to its start;
 * the viscous heating W_k of each parcel per step (from its entropy change at the new volume: the heating's
-  definition, varint.shock_capturing), summed as the dissipated energy, relative to the largest kinetic
+  definition, varint.terms.shock_capturing), summed as the dissipated energy, relative to the largest kinetic
   energy of the run (the wave's energy scale);
 * where it happens: the share of each step's heating carried by the two most heated parcels, averaged over
   the steps with weight W (2/16 = 0.125 for heating spread evenly over the 16 parcels);
 * for A = 2, 5, 10, 20 %: how much of the wave's energy is dissipated, with the defaults (c_Q = 1,
   c_L = 0.5), with the quadratic term alone (c_L = 0), and with the defaults under Christensen's limiter
-  (varint.shock_capturing.limited), which switches Q off where the compression is smooth.
+  (varint.terms.shock_capturing.limited), which switches Q off where the compression is smooth.
 
 * a long 20 % run (default 10^5 steps of 40 us, 4 s, as docs/validation.md's energy table) without
   [shock_capturing], with the defaults and with the limiter: per twentieth of the run the steepest pressure
@@ -35,7 +35,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import gas_scene, make  # noqa: E402
+from varint.scene.standard import gas_scene  # noqa: E402
+from helpers import make  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 
@@ -60,7 +61,7 @@ def run(amplitude, steps, h=1e-5, parcels=16, shock=None, every=100):
     """Run; returns a dict of series (t, energy error, kinetic energy, dissipated energy) and the localisation.
 
     ``shock``: the [shock_capturing] keys; ``limiter`` among them switches on Christensen's limiter
-    (varint.shock_capturing.limited) on the force after the model is built, whether or not the scene
+    (varint.terms.shock_capturing.limited) on the force after the model is built, whether or not the scene
     schema knows the key yet."""
     shock = dict(shock or {})
     limiter = shock.pop("limiter", False)

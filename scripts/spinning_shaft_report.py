@@ -20,7 +20,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_rod_spinning import (SPIN_RATE, _nearest, blade_lattice_flap, blade_time_domain_flap, shaft_model,  # noqa: E402
                                 time_domain_whirl, whirl)
 
-from varint.rod_statics import rod_modes  # noqa: E402
+from varint.analysis.rod_modes import rod_modes  # noqa: E402
 
 
 def main():

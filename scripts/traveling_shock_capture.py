@@ -5,7 +5,7 @@ beta1 = 1.14e5, beta2 = 8.37e5, a = 0.4782; 2 m tube, closed ends), with [shock_
 
 Two starts:
 
-* ``profile``: the traveling wave of speed c = 447 m/s (varint.shocks.traveling_shock) with the shock at
+* ``profile``: the traveling wave of speed c = 447 m/s (varint.exact.shocks.traveling_shock) with the shock at
   s = 1 m, as ``[initial.traveling_shock]`` sets it.  We track the captured shock (the steepest pressure
   jump between neighbouring parcels, refined to where the pressure crosses the mean of the wave's two
   states at the shock), fit its speed over the run, and compare the captured fields at fixed distances
@@ -35,17 +35,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import to_toml  # noqa: E402
+from varint.scene.text import to_toml  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.shocks import ideal_gas_state, relative_residuals, rh_residuals, traveling_shock, tube_of_scene  # noqa: E402
+from varint.exact.shocks import ideal_gas_state, relative_residuals, rh_residuals, traveling_shock  # noqa: E402
+from varint.scene.derived import tube_of_scene  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "rubber_tube_traveling_shock.toml"
 SPEED = 447.0
 X0 = 1.0
 #: distances from the shock (m, negative: behind) where the captured fields are compared with the wave's profile
 OFFSETS = (-0.3, -0.2, -0.1, -0.05, 0.1, 0.2)
-#: parcels either side of the captured shock whose states enter the jump conditions (varint.shocks.measure_shock's default)
+#: parcels either side of the captured shock whose states enter the jump conditions (varint.analysis.shock_measure.measure_shock's default)
 RH_OFFSET = 4
 
 
@@ -109,7 +110,7 @@ def sample(c, f, x):
 def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=False, limiter=False):
     """Run one case; returns a dict with the track (t, x_shock), the fitted speed and the comparisons.
 
-    ``limiter``: Christensen's limiter on the viscous pressure (varint.shock_capturing.limited)."""
+    ``limiter``: Christensen's limiter on the viscous pressure (varint.terms.shock_capturing.limited)."""
     ds = 2.0 / parcels
     h = cfl * ds / 800.0  # 800 m/s: the fastest characteristic behind the shock (u + c)
     n = int(math.ceil(end / h))

@@ -1,5 +1,5 @@
 """A garden hose in large free motion: the coupled tube (rod + wall + fluid) with the energy-momentum step
-(varint/tube_em.py, docs/theory.md §12b) against the midpoint step at steps set by the motion.
+(varint/schemes/em_tube.py, docs/theory.md §12b) against the midpoint step at steps set by the motion.
 
 The hose: rubber annulus (outer radius 12 mm, bore 10 mm, E = 5 MPa, rho = 1100 kg/m^3), 1 m, free, released from an
 arc (curvature 2/m about z and 1/m about y) while spinning at 2 rad/s about z; water (incompressible, or barotropic with
@@ -22,7 +22,7 @@ import numpy as np
 
 from varint import Simulation, build_model, parse_scene
 from varint.errors import SolverError
-from varint.sweep import to_toml
+from varint.scene.text import to_toml
 
 E_RUBBER, RHO_RUBBER, NU = 5.0e6, 1100.0, 0.45
 

@@ -1,4 +1,4 @@
-"""A long run of the coupled tube's energy-momentum step (varint/tube_em.py, docs/theory.md §12b, §12c): the free
+"""A long run of the coupled tube's energy-momentum step (varint/schemes/em_tube.py, docs/theory.md §12b, §12c): the free
 spinning hose of examples/whirling_hose_energy_momentum.toml (water flowing at 1 m/s, dynamic wall, 12 elements,
 h = 10 ms, where the midpoint step stops within 35 steps), for --steps steps.  Every --every steps: the energy error
 relative to the initial kinetic energy, the momenta's changes relative to |J0|, the labels' constraint and the
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from varint import build_model, load_scene, parse_scene
-from varint.tube_em import TubeEMStep
+from varint.schemes.em_tube import TubeEMStep
 
 SCENE = Path(__file__).resolve().parent.parent / "examples" / "whirling_hose_energy_momentum.toml"
 

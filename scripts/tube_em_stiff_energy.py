@@ -20,7 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tube_em_long_run import director_share, hose  # noqa: E402
 
-from varint.tube_em import TubeEMStep  # noqa: E402
+from varint.schemes.em_tube import TubeEMStep  # noqa: E402
 
 
 def main():

@@ -15,10 +15,13 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import test_convergence as tc  # noqa: E402
 import test_waves as tw  # noqa: E402
-from helpers import AIR, gas_scene, make, zero_crossing_frequency  # noqa: E402, F401
+from varint.scene.standard import AIR, gas_scene  # noqa: E402, F401
+from helpers import make  # noqa: E402, F401
+from varint.analysis.signals import zero_crossing_frequency  # noqa: E402, F401
 
 from varint import Simulation  # noqa: E402
-from varint.analysis import dispersion_branches, modes, webster_frequencies  # noqa: E402
+from varint.exact.waves import dispersion_branches, webster_frequencies  # noqa: E402
+from varint.analysis.linear import modes  # noqa: E402
 
 
 def sound_speed():

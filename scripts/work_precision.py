@@ -17,7 +17,8 @@ from scipy.integrate import solve_ivp
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from helpers import gas_scene, make  # noqa: E402
+from varint.scene.standard import gas_scene  # noqa: E402
+from helpers import make  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 
@@ -31,7 +32,7 @@ def model_for(h, scheme):
 
 
 def rhs_factory(model):
-    tube = model.tube  # the s, R blocks (varint.tube.TubePart); no algebraic unknowns in this scene
+    tube = model.tube  # the s, R blocks (varint.terms.tube.TubePart); no algebraic unknowns in this scene
     Bq = tube.B[:, : tube.nq]
     Minv = 1.0 / tube.mass
     nq = tube.nq

@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from bench_pyelastica import TIP, largest_stable_dt, pyelastica_cantilever, reference, varint_cantilever  # noqa: E402
-from helpers import zero_crossing_frequency  # noqa: E402
+from varint.analysis.signals import zero_crossing_frequency  # noqa: E402
 
 from varint import Simulation  # noqa: E402
 
@@ -112,7 +112,7 @@ class Varint:
         self.n_el, self.k, self.h = n_el, k, T1 / k
         self.model = varint_cantilever(E, self.h, n_el)
         self.sim = Simulation(self.model)
-        self.i_tip = self.model.rod_q.start + 3 * n_el + 1  # y of the tip node (planar layout: varint.model)
+        self.i_tip = self.model.rod_q.start + 3 * n_el + 1  # y of the tip node (planar layout: varint.model.model)
 
     def steps(self, n):
         sim = self.sim

@@ -1,11 +1,11 @@
-"""Write docs/scenes.md from the scene schema (varint.scene.SCHEMA), so the docs cannot drift.
+"""Write docs/scenes.md from the scene schema (varint.scene.schema.SCHEMA), so the docs cannot drift.
 
 Run: python scripts/write_scene_docs.py   (tests/test_docs.py checks the file is current)
 """
 
 from pathlib import Path
 
-from varint.scene import NOT_YET, REQUIRED, SCHEMA, _num
+from varint.scene.schema import NOT_YET, REQUIRED, SCHEMA, _num
 
 HEADER = """# Scene files
 
@@ -17,7 +17,7 @@ are errors (the nearest valid key is suggested); every problem is reported as on
 `key.path: what is wrong`. `varint check SCENE.toml` prints the resolved parameters, the effects,
 the unknowns and the expected invariants.
 
-This page is generated from `varint/scene.py` by `scripts/write_scene_docs.py`.
+This page is generated from `varint/scene/schema.py` by `scripts/write_scene_docs.py`.
 
 Perturbation profiles: `cosine` adds amplitude·cos(2πs/wavelength + phase); `gaussian` adds
 amplitude·exp(−(s−center)²/(2 width²)); `step` adds amplitude on [from, to]. Pressure and density

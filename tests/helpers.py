@@ -1,88 +1,16 @@
-"""Shared helpers: scenes written as Python dicts and emitted as TOML text."""
-
-import copy
-import math
+"""Helpers the tests share (the standard scenes themselves are varint.scene.standard's)."""
 
 import numpy as np
 
-
 from varint import build_model, parse_scene
-
-
-def _value(v):
-    if isinstance(v, np.generic):
-        v = v.item()
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + " }"
-    if isinstance(v, float):
-        return repr(v)
-    return str(v)
-
-
-def to_toml(d):
-    """Emit a scene dict as TOML: top-level scalars, [tables], [[arrays of tables]] one level deep."""
-    lines = [f"{k} = {_value(v)}" for k, v in d.items() if not isinstance(v, dict)]
-    for sec, body in d.items():
-        if not isinstance(body, dict):
-            continue
-        lines.append(f"\n[{sec}]")
-        arrays = {}
-        for k, v in body.items():
-            if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-                arrays[k] = v
-            else:
-                lines.append(f"{k} = {_value(v)}")
-        for k, items in arrays.items():
-            for item in items:
-                lines.append(f"\n[[{sec}.{k}]]")
-                lines += [f"{kk} = {_value(vv)}" for kk, vv in item.items()]
-    return "\n".join(lines) + "\n"
-
-
-RUBBER_WALL = {"model": "dynamic", "law": "linear", "thickness": 1.0e-3, "density": 1522.0,
-               "youngs_modulus": 5.0e6, "poisson_ratio": 0.5}
-AIR = {"model": "ideal-gas", "gamma": 1.4, "density": 1.225, "pressure": 101325.0}
-
-
-def gas_scene(nodes=33, parcels=32, length=1.0, wall=True, ends="closed", h=1e-5, end=1e-3,
-              scheme="midpoint", perturbation=None, fluid_velocity=None, **extra):
-    d = {"title": "test scene",
-         "tube": {"length": length, "nodes": nodes, "radius": 0.05},
-         "fluid": dict(AIR, parcels=parcels, ends={"s0": ends, "sL": ends}),
-         "environment": {"external_pressure": 101325.0},
-         "time": {"step": h, "end": end, "scheme": scheme}}
-    if wall:
-        d["wall"] = dict(RUBBER_WALL)
-    if perturbation is not None:
-        d["fluid"]["perturbation"] = perturbation
-    for k, v in extra.items():
-        d[k] = v
-    return d
+from varint.analysis.signals import zero_crossing_frequency
+from varint.scene.text import to_toml
 
 
 def make(d):
     """Scene dict -> (scene, model)."""
     scene = parse_scene(to_toml(d))
     return scene, build_model(scene)
-
-
-
-
-def zero_crossing_frequency(t, y):
-    """Angular frequency from the spacing of the first and last zero crossings of y(t) (linear interpolation).
-
-    y must oscillate about zero (no mean is subtracted: over a non-integer number of periods
-    the sample mean of a pure cosine is not zero and would bias the crossings).
-    """
-    idx = np.nonzero(np.sign(y[:-1]) * np.sign(y[1:]) < 0)[0]
-    tc = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
-    return math.pi * (len(tc) - 1) / (tc[-1] - tc[0])
 
 
 def tip_frequency(model, steps, scheme=None):
@@ -116,7 +44,7 @@ def momentum_drift(sim, steps, every=1):
 def fail_newton_at(step, sizes, calls=None, after=0):
     """Make an energy-momentum step's Newton (``step._solve``) fail while the step size is one of ``sizes``: the
     attempts at each size numbered after+1 .. calls (counted from 1; ``calls=None``: all from after+1 on).  With
-    after=0 and calls = the starts tried before varint.rod_em.halved_step, only those fail.  Attempts at other step
+    after=0 and calls = the starts tried before varint.schemes.em_rod.halved_step, only those fail.  Attempts at other step
     sizes run as usual.  Returns the list of the sizes attempted."""
     from varint.errors import SolverError
 

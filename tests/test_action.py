@@ -4,7 +4,7 @@ Every check has a tolerance relative to the quantity checked, so that a small fo
 under a large one (in 0.1 one absolute tolerance per block, set by the pressure forces, let the
 whole gravity force go unnoticed):
 
-* each potential term of the model (:mod:`varint.terms`): its gradient against central finite
+* each potential term of the model (:mod:`varint.terms.tube_potential`): its gradient against central finite
   differences of its own energy and its Hessian against finite differences of its own gradient,
   relative to that term's own size, block by block;
 * the step residual: for a short random lattice trajectory q_0, q_1, q_2 (and half-level
@@ -23,9 +23,10 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from varint.stepper import make_scheme
+from varint.schemes.midpoint import make_scheme
 
-from helpers import AIR, gas_scene, make
+from varint.scene.standard import AIR, gas_scene
+from helpers import make
 
 #: gravity along the tube axis in every scene with a fluid [m/s^2]
 G_X = 9.81

@@ -11,10 +11,11 @@ import pytest
 
 from varint import parse_scene
 from varint.cli import main
-from varint.io import read_run
-from varint.runner import default_output
+from varint.run.io import read_run
+from varint.run.runner import default_output
 
-from helpers import gas_scene, to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -178,7 +179,7 @@ def _interrupt(*a, **k):
 
 
 def test_ctrl_c_in_plot_modes_static_says_interrupted_only(tmp_path, capsys, monkeypatch):
-    import varint.model
+    import varint.model.model
     import varint.plotting
 
     f = _gas(tmp_path)
@@ -188,7 +189,7 @@ def test_ctrl_c_in_plot_modes_static_says_interrupted_only(tmp_path, capsys, mon
     monkeypatch.setattr(varint.plotting, "plot_run", _interrupt)
     assert main(["plot", str(out), "-d", str(tmp_path)]) == 130
     assert capsys.readouterr().err.strip() == "varint: interrupted"
-    monkeypatch.setattr(varint.model, "build_model", _interrupt)
+    monkeypatch.setattr(varint.model.model, "build_model", _interrupt)
     assert main(["modes", str(f)]) == 130
     assert capsys.readouterr().err.strip() == "varint: interrupted"
     assert main(["static", str(_cantilever(tmp_path)), "-o", str(tmp_path / "s.h5")]) == 130
@@ -196,7 +197,7 @@ def test_ctrl_c_in_plot_modes_static_says_interrupted_only(tmp_path, capsys, mon
 
 
 def test_ctrl_c_in_run_names_the_file_and_the_resume(tmp_path, capsys, monkeypatch):
-    from varint import stepper
+    from varint.run import simulation as stepper
 
     f = _gas(tmp_path, end=3e-4)
     out = tmp_path / "o.h5"
@@ -217,10 +218,10 @@ def test_ctrl_c_in_run_names_the_file_and_the_resume(tmp_path, capsys, monkeypat
 
 
 def test_ctrl_c_before_any_record_does_not_promise_a_resume(tmp_path, capsys, monkeypatch):
-    import varint.runner
+    import varint.run.runner
 
     f = _gas(tmp_path)
-    monkeypatch.setattr(varint.runner, "build_model", _interrupt)
+    monkeypatch.setattr(varint.run.runner, "build_model", _interrupt)
     assert main(["run", str(f), "-o", str(tmp_path / "o.h5"), "-q"]) == 130
     assert capsys.readouterr().err.strip() == "varint: interrupted"
 

@@ -5,7 +5,8 @@ import pytest
 
 from varint import Simulation
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 P0 = 101325.0
 #: relative energy-error bound of the 10 % sloshing run (measured 8.19e-10 over 10^4 and 10^5 steps, docs/validation.md)
@@ -88,8 +89,7 @@ def test_trapezoidal_energy_bounded_and_second_order():
 def test_periodic_rigid_tube_conserves_momentum_to_roundoff():
     pert = [{"field": "velocity", "shape": "cosine", "amplitude": 30.0, "wavelength": 1.0},
             {"field": "pressure", "shape": "gaussian", "amplitude": 3e4, "center": 0.3, "width": 0.05}]
-    _, model = make(gas_scene(nodes=33, parcels=40, wall=False, ends="periodic", h=2e-6, perturbation=pert,
-                              fluid_velocity=None))
+    _, model = make(gas_scene(nodes=33, parcels=40, wall=False, ends="periodic", h=2e-6, perturbation=pert))
     sim = Simulation(model)
     P0_ = sim.monitors()["linear_momentum"][0]
     # unknowns are displacements from the reference lattice, so the round-off left by each step

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from varint import Simulation
-from varint.stepper import make_scheme
+from varint.schemes.midpoint import make_scheme
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 pytestmark = pytest.mark.convergence
 

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from varint.coupled_geometry import (centreline, centreline_weights, nodal_stretch, stretched_volume_derivatives,
-                                     stretched_volumes)
-from varint.geometry import parcel_volumes
+from varint.lattice.centreline import (centreline, centreline_weights, nodal_stretch, stretched_volume_derivatives, stretched_volumes)
+from varint.lattice.parcels import parcel_volumes
 
 RNG = np.random.default_rng(7)
 

@@ -1,4 +1,4 @@
-"""Linear modes of the coupled tube (varint/coupled_modes.py; docs/theory.md §10.5, §10.7a), against
+"""Linear modes of the coupled tube (varint/analysis/coupled_modes.py; docs/theory.md §10.5, §10.7a), against
 independent truths:
 
 * the fluid's static potential: its gradient is -(D1 + D2) of the step kernel at h = 1 with equal levels,
@@ -27,18 +27,18 @@ import numpy as np
 import pytest
 
 from varint import build_model, parse_scene
-from varint.analysis import modes as tube_modes
-from varint.analysis import timoshenko_cantilever
-from varint.coupled_geometry import centreline
-from varint.coupled_modes import coupled_linearization, coupled_modes, coupled_static, modes_of_linearization
-from varint.coupled_terms import (FluidPotential, fluid_kinetic_metric, fluid_potential_static,
-                                  fluid_potential_step)
+from varint.analysis.linear import modes as tube_modes
+from varint.exact.beams import timoshenko_cantilever
+from varint.lattice.centreline import centreline
+from varint.analysis.coupled_modes import coupled_linearization, coupled_modes, coupled_static, modes_of_linearization
+from varint.terms.coupled import FluidPotential, fluid_kinetic_metric, fluid_potential_static, fluid_potential_step
 from varint.errors import VarintError
-from varint.lie import cay
-from varint.modes_api import scene_modes
-from varint.rod_statics import rod_modes, static_equilibrium
+from varint.lattice.lie import cay
+from varint.analysis.modes import scene_modes
+from varint.analysis.rod_modes import rod_modes
+from varint.model.statics import static_equilibrium
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 
 SECTION = {"mass_per_length": 0.3, "rotary_inertia": 1e-5, "bending_stiffness": 2.0, "torsional_stiffness": 1.6,
            "axial_stiffness": 1e4, "shear_stiffness": 8e3}
@@ -73,7 +73,7 @@ def freqs(res):
     return np.array([m["frequency"] for m in res])
 
 
-# -- the fluid's static potential and metric (varint/coupled_terms.py) -------------------------------------
+# -- the fluid's static potential and metric (varint/terms/coupled.py) -------------------------------------
 
 
 def _bent_state(fluid, rng):
@@ -191,7 +191,7 @@ def test_free_tube_mass_is_spd_and_stiffness_annihilates_rigid_motions(fluid, wa
         x[model.rod_z] = u[rod.mask]
         assert np.max(np.abs(K @ x)) <= 1e-12 * np.max(np.abs(K)) * np.max(np.abs(x))
     f = freqs(coupled_modes(model, count=model.nz))
-    # (zero to the dense solver's resolution, 1e-7 of the highest frequency: varint.analysis)
+    # (zero to the dense solver's resolution, 1e-7 of the highest frequency: varint.analysis.linear)
     assert np.all(f[:6] <= 1e-7 * f[-1]) and f[6] > 1e-4 * f[-1]
 
 
@@ -249,7 +249,7 @@ def test_liquid_in_a_rigid_tube_holds_its_length_axial_modes_are_the_rods_own():
 
 def test_liquid_cantilever_converges_to_timoshenko_at_second_order():
     """The first two bending frequencies against the Timoshenko cantilever with rho A + rho_f A_f
-    (varint.analysis.timoshenko_cantilever, shooting): errors fall by ~4 per halving of ds."""
+    (varint.exact.beams.timoshenko_cantilever, shooting): errors fall by ~4 per halving of ds."""
     R, rho_f = 0.01, 1000.0
     m_tot = SECTION["mass_per_length"] + rho_f * math.pi * R * R
     truth = timoshenko_cantilever(SECTION["bending_stiffness"], SECTION["shear_stiffness"], m_tot,
@@ -267,7 +267,7 @@ def test_liquid_cantilever_converges_to_timoshenko_at_second_order():
 
 def test_gas_in_a_stiff_clamped_tube_has_the_fixed_tubes_acoustic_modes():
     """A gas-filled tube clamped at both ends, rod 10^4 times stiffer axially than the gas column: its axial
-    acoustic frequencies are the fixed straight tube's lattice modes (varint.analysis.modes, the 0.1 code path)
+    acoustic frequencies are the fixed straight tube's lattice modes (varint.analysis.linear.modes, the 0.1 code path)
     to 1e-8, and approach n pi c / L at second order in the parcel length."""
     c = math.sqrt(GAS["gamma"] * GAS["pressure"] / GAS["density"])
     stiff = dict(SECTION, axial_stiffness=1e8, shear_stiffness=1e8, bending_stiffness=1e5, torsional_stiffness=1e5,
@@ -401,7 +401,7 @@ def test_cli_modes_of_the_water_filled_hose(tmp_path):
     Euler-Bernoulli with the rubber's and the water's mass (a slender hose)."""
     from pathlib import Path
 
-    from varint.analysis import euler_bernoulli_cantilever
+    from varint.exact.beams import euler_bernoulli_cantilever
 
     scene = Path(__file__).resolve().parent.parent / "examples" / "water_filled_hose.toml"
     out = subprocess.run([sys.executable, "-m", "varint", "modes", str(scene), "-n", "3"], capture_output=True,

@@ -3,8 +3,8 @@
 The pipe is Païdoussis' (Fluid-Structure Interactions vol. 1 ch. 3): L = 1, EI = 1, M + m = 1 (so u = U sqrt(M) and
 frequencies and rates are dimensionless), an incompressible liquid in a rigid tube, entering through a velocity inlet
 at s = 0 (attached to the rod's s = 0 end) and leaving as a free jet.  Thresholds are the truths of
-varint.pipe_stability (eq. 3.70, an independent Galerkin solver), never varint's own output; the growth rate measured
-in a run is compared with varint.flowing_modes (a cross-check of the same lattice, not a truth).
+varint.exact.pipe_stability (eq. 3.70, an independent Galerkin solver), never varint's own output; the growth rate measured
+in a run is compared with varint.analysis.flowing_modes (a cross-check of the same lattice, not a truth).
 
 Which rod: the cantilever and the steady pipe use rod.constraint = "inextensible_unshearable" (Païdoussis' inextensible
 pipe; it removes the stiff axial modes whose parasitic midpoint mode the flow pumps, docs/theory.md §12); a straight
@@ -16,21 +16,21 @@ docs/validation.md "Open ends on the coupled tube").
 import numpy as np
 import pytest
 
-from varint import pipe_stability as ps
-from varint.analysis import peak_growth_rate
+from varint.exact import pipe_stability as ps
+from varint.analysis.signals import peak_growth_rate
 from varint.errors import SceneError, SolverError
-from varint.model import build_model
-from varint.modes_api import scene_modes
-from varint.pipe_scenes import pipe_scene_text
-from varint.scene import parse_scene
-from varint.stepper import Simulation
+from varint.model.model import build_model
+from varint.analysis.modes import scene_modes
+from varint.scene.standard import pipe_scene_text
+from varint.scene.schema import parse_scene
+from varint.run.simulation import Simulation
 
 BETA = 0.2
 
 
 def pipe(ends=("clamped", "free"), u=1.0, nodes=21, dim=2, h=1e-3, constraint="inextensible_unshearable",
          kick=0.0, profile="tip", gravity=0.0):
-    """A [rod] + [fluid] pipe with open ends at Païdoussis' (u, BETA): EI = 1, L = 1, M + m = 1 (varint.pipe_scenes)."""
+    """A [rod] + [fluid] pipe with open ends at Païdoussis' (u, BETA): EI = 1, L = 1, M + m = 1 (varint.scene.standard)."""
     return parse_scene(pipe_scene_text(ends, BETA, u, nodes, dim, gravity, constraint=constraint, h=h, kick=kick,
                                        profile=profile))
 
@@ -52,7 +52,7 @@ def peak_rate(t, y, skip=1):
 
 
 def modes_rate(ends, u, nodes):
-    """The largest growth rate of varint.flowing_modes for the same lattice (the nearly inextensible rod: the
+    """The largest growth rate of varint.analysis.flowing_modes for the same lattice (the nearly inextensible rod: the
     linearisation takes no constrained rod)."""
     d = scene_modes(pipe(ends, u, nodes, constraint="none"), count=6)
     return max(m["growth_rate"] for m in d["modes"])
@@ -217,8 +217,8 @@ end = 1e-3
 def test_a_resumed_run_repeats_the_uninterrupted_one_bit_for_bit(tmp_path):
     """The checkpoint holds the coupled open tube's lattice, its balances' sums (15 entries) and the last level (the
     step energy's): a run stopped mid-way and resumed writes the same records, fields and monitors, bit for bit."""
-    from varint.io import read_run
-    from varint.runner import run_scene
+    from varint.run.io import read_run
+    from varint.run.runner import run_scene
 
     sc = pipe(("clamped", "free"), 3.0, 11, h=4e-3, kick=1e-2, gravity=10.0)
     sc.time["end"] = 0.2

@@ -1,8 +1,8 @@
-"""[shock_capturing] on the coupled tube (varint/coupled_shock_capturing.py, docs/theory.md §11a "In the coupled tube").
+"""[shock_capturing] on the coupled tube (varint/terms/coupled_shock_capturing.py, docs/theory.md §11a "In the coupled tube").
 
 Independent truths: finite differences of the step residual (the force's Newton block), the invariance of the
 force under rigid motions (zero net force and torque at each level, no viscosity for a rigidly moved tube),
-the exact Riemann solution (varint.shocks.RiemannSolution) for Sod in the straight coupled tube at rest, and the
+the exact Riemann solution (varint.exact.shocks.RiemannSolution) for Sod in the straight coupled tube at rest, and the
 straight tube's own error there (tests/test_shock_capturing.py).  Entropy, momenta and positivity at every step.
 """
 
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from varint import SceneError, Simulation, build_model, parse_scene
-from varint.lie import cay
-from varint.rod import pack_level, unpack_level
-from varint.shocks import RiemannSolution
-from varint.step_terms import Derivatives
+from varint.lattice.lie import cay
+from varint.terms.rod import pack_level, unpack_level
+from varint.exact.shocks import RiemannSolution
+from varint.terms.step import Derivatives
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 
 GAMMA = 1.4
 SOD = ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1))
@@ -245,8 +245,8 @@ def test_generalised_jump_conditions_hold_across_a_shock_in_a_stretched_bent_spi
     the jumps (measured 2.4e-2, 1.1e-2, 1.9e-2; they fall with refinement: 5.6e-3, 1.7e-4, 4.6e-3 at 400 parcels,
     scripts/coupled_shock_rh.py), while the straight-tube momentum condition (|Gamma| = 1) on the same data
     misses by 7.3e-2 (and stays there with refinement: 6.5e-2 at 400 parcels)."""
-    from varint.io import RunWriter
-    from varint.shocks import measure_coupled_shock
+    from varint.run.io import RunWriter
+    from varint.analysis.shock_measure import measure_coupled_shock
 
     M, T, T_span, T_avg = 100, 0.15, 0.015, 0.008
     cmax = math.sqrt(GAMMA * SOD[0][2] / SOD[0][0])
@@ -278,7 +278,7 @@ def test_generalised_jump_conditions_hold_across_a_shock_in_a_stretched_bent_spi
 def test_resumed_coupled_run_equals_continuous_run(tmp_path):
     """A checkpoint carries the heated entropies (State.data): a fresh model resumed from it continues bitwise as the
     continuous run (the force's and the fluid term's potentials read the tube's entropy array in place)."""
-    from varint.io import RunWriter, read_checkpoint
+    from varint.run.io import RunWriter, read_checkpoint
 
     d = coupled_sod(M=20, nodes=7, h=4e-3, end=0.08, initial=BENT_SPINNING)
     scene = parse_scene(to_toml(d))

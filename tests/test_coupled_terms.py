@@ -6,14 +6,14 @@ term alone and all together, ideal gas / barotropic / incompressible, closed and
 gradients against central differences of L (Lie variations Lambda cay(eps e_d) for the frames), the
 Newton blocks of both terms against differences of the rotated residual in the step unknowns, rigid-motion
 invariance and the level-wise identities of §10.6, and the 0.1 tube terms on the fixed straight
-centreline (varint/terms.py through the model's tube part)."""
+centreline (varint/terms/tube_potential.py through the model's tube part)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from varint.coupled_terms import fluid_kinetic_step
+from varint.terms.coupled import fluid_kinetic_step
 
 RNG = np.random.default_rng(11)
 H = 1e-3
@@ -121,7 +121,7 @@ def test_invariant_under_rigid_motions_and_its_noether_momenta():
     moment = np.cross(r0, f0).sum(0) + np.cross(r1, f1).sum(0)
     assert np.max(np.abs(moment)) < 1e-13 * scale * n_nodes
     # the level-(n+1) node forces add up to the fluid's discrete linear momentum sum mbar (X1 - X0) / h
-    from varint.coupled_geometry import centreline
+    from varint.lattice.centreline import centreline
 
     X0, X1 = centreline(s0, r0, ds)[0], centreline(s1, r1, ds)[0]
     P = np.sum(mbar[:, None] * (X1 - X0), axis=0) / H
@@ -131,11 +131,10 @@ def test_invariant_under_rigid_motions_and_its_noether_momenta():
 # ---------------------------------------------------------------------------
 # the fluid's potential part of the step (docs/theory.md §10.4.2) and both terms in the stepper's layout
 
-from varint.coupled_geometry import centreline, nodal_stretch, stretched_volumes  # noqa: E402
-from varint.coupled_terms import (FluidPotential, element_strains, fluid_kinetic_chart,  # noqa: E402
-                                  fluid_potential_step, newton_offsets, stretch_map)
-from varint.lie import cay, cay_inv  # noqa: E402
-from varint.thermo import IdealGas, Tait  # noqa: E402
+from varint.lattice.centreline import centreline, nodal_stretch, stretched_volumes  # noqa: E402
+from varint.terms.coupled import (FluidPotential, element_strains, fluid_kinetic_chart, fluid_potential_step, newton_offsets, stretch_map)
+from varint.lattice.lie import cay, cay_inv  # noqa: E402
+from varint.terms.thermo import IdealGas, Tait  # noqa: E402
 
 HP = 0.05          # a step long enough that the two levels differ visibly
 GRAV = np.array([0.3, -0.2, -9.81])
@@ -470,8 +469,9 @@ LIQUID = {"model": "incompressible", "density": 1000.0, "pressure": 1.0e5}
 
 @pytest.mark.parametrize("fluid,ends", [("gas", "closed"), ("gas", "periodic"), ("liquid", "closed")])
 def test_straight_fixed_centreline_reduces_to_the_tube_terms(fluid, ends):
-    from helpers import gas_scene, make
-    from varint.terms import Config
+    from varint.scene.standard import gas_scene
+    from helpers import make
+    from varint.terms.tube_potential import Config
 
     d = gas_scene(nodes=9, parcels=11, ends=ends, environment={"external_pressure": 9.0e4, "gravity": [7.5, 0.0, 0.0]})
     if fluid == "liquid":
@@ -543,7 +543,7 @@ def test_stretch_map_and_element_strains(periodic):
 @pytest.mark.parametrize("periodic", [False, True], ids=["closed", "periodic"])
 def test_external_pressure_works_on_the_whole_stretched_volume(periodic):
     """L of p_ext alone is -h p_ext Vol(Rbar, gamma) with Vol the sum of the parcel volumes over the whole
-    tube (varint/coupled_geometry.py, checked there against quadrature)."""
+    tube (varint/lattice/centreline.py, checked there against quadrature)."""
     fp, st = _case("pext", periodic)
     fp = FluidPotential(**{**fp.__dict__, "g": np.zeros(3)})
     out = fluid_potential_step(fp, HP, **st)
@@ -560,7 +560,7 @@ def test_external_pressure_works_on_the_whole_stretched_volume(periodic):
 
 import scipy.sparse as sps  # noqa: E402
 
-from varint import coupled_terms as ct  # noqa: E402
+from varint.terms import coupled as ct  # noqa: E402
 
 
 #: (elements, parcels, seed of `_case`): seeds whose moved labels stay ordered and on the tube

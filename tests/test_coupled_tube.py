@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.analysis import timoshenko_cantilever
-from varint.lie import cay
-from varint.rod import pack_level, unpack_level
+from varint.exact.beams import timoshenko_cantilever
+from varint.lattice.lie import cay
+from varint.terms.rod import pack_level, unpack_level
 
-from helpers import momentum_drift, tip_frequency, to_toml
+from helpers import momentum_drift, tip_frequency
+from varint.scene.text import to_toml
 
 SECTION = {"mass_per_length": 0.5, "rotary_inertia": 1e-4, "bending_stiffness": 5.0, "torsional_stiffness": 4.0,
            "axial_stiffness": 1e4, "shear_stiffness": 8e3}
@@ -258,7 +259,7 @@ def test_gravity_changes_the_momentum_by_exactly_h_mtot_g():
 
 def _release_from_mode(model, shape_of, amp=1e-4):
     """Start ``model``'s rod at rest in the first mode shape of ``shape_of`` (a rod model), tip amplitude ``amp``."""
-    from varint.rod_statics import rod_modes
+    from varint.analysis.rod_modes import rod_modes
 
     _, X = rod_modes(shape_of, count=1, vectors=True)
     rod = model.rod
@@ -293,7 +294,7 @@ def test_liquid_filled_cantilever_is_the_rod_with_the_liquid_s_mass():
     first order the labels stay at rest and the liquid adds rho_f A_f to rho A.  The coupled run's first
     bending frequency equals (i) that of the rod lattice with rho A + rho_f A_f, run the same way, up to
     the second-order effects of the amplitude, and (ii) the Timoshenko cantilever's with that mass
-    (varint.analysis.timoshenko_cantilever) up to the lattice's O(ds^2) and the step's O((w h)^2) errors."""
+    (varint.exact.beams.timoshenko_cantilever) up to the lattice's O(ds^2) and the step's O((w h)^2) errors."""
     coupled, heavy, f_beam = liquid_cantilever(N=30, h=4e-3)
     f_rod = tip_frequency(heavy, 1000)
     f_coupled = tip_frequency(coupled, 1000)

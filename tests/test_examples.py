@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import varint
-from varint.io import read_run
+from varint.run.io import read_run
 
 EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples").glob("*.toml"))
 STEPS = 20

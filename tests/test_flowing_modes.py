@@ -1,5 +1,5 @@
-"""Modes of a tube conveying fluid (varint/flowing_modes.py, docs/theory.md §13.6) against the classical theory of
-pipes conveying fluid: Païdoussis' eq. (3.70) solved independently by varint/pipe_stability.py (Galerkin on beam
+"""Modes of a tube conveying fluid (varint/analysis/flowing_modes.py, docs/theory.md §13.6) against the classical theory of
+pipes conveying fluid: Païdoussis' eq. (3.70) solved independently by varint/exact/pipe_stability.py (Galerkin on beam
 modes; validated against the exact determinant in tests/test_pipe_stability.py).  The pipe: L = 1, EI = 1,
 M + m = 1 (so u = U sqrt(M), omega = Omega, gamma = g), nearly inextensible and unshearable (EA = kGA = 1e7 EI/L^2),
 with a small rotary inertia (radius of gyration 1e-3 L); 40 elements unless said.  Measured errors (40 / 20
@@ -13,13 +13,14 @@ import sys
 import numpy as np
 import pytest
 
-from varint import pipe_stability as ps
+from varint.exact import pipe_stability as ps
 from varint.errors import VarintError
-from varint.flowing_modes import first_order_modes, flow_matrices, flowing_linearization, threshold
-from varint.model import build_model
-from varint.modes_api import scene_modes, strongest
-from varint.pipe_scenes import pipe_scene_text as pipe_text
-from varint.scene import parse_scene
+from varint.analysis.flowing_modes import first_order_modes, flow_matrices, flowing_linearization
+from varint.analysis.thresholds import threshold
+from varint.model.model import build_model
+from varint.analysis.modes import scene_modes, strongest
+from varint.scene.standard import pipe_scene_text as pipe_text
+from varint.scene.schema import parse_scene
 
 
 def model_of(*args, **kw):
@@ -27,7 +28,7 @@ def model_of(*args, **kw):
 
 
 def u_threshold(ends, beta, lo, hi, nodes=41, gamma=0.0, dim=2):
-    """(u_c, Omega_c) by the bisection of varint.flowing_modes.threshold on fluid.velocity (U = u / sqrt(beta))."""
+    """(u_c, Omega_c) by the bisection of varint.analysis.thresholds.threshold on fluid.velocity (U = u / sqrt(beta))."""
     about = "static" if gamma else "initial"
     text = pipe_text(ends, beta, 1.0, nodes, dim, gamma)
     res = threshold(text, lo / np.sqrt(beta), hi / np.sqrt(beta), count=8, about=about, rtol=1e-5)
@@ -136,7 +137,7 @@ def test_steady_sag_of_a_horizontal_flowing_cantilever():
     bent tube included) against the linear theory EI w'''' + M U^2 w'' = q, w(0) = w'(0) = 0, w''(L) = w'''(L) = 0:
     w(L) = q/(EI k^2) [L^2/2 - (cos kL + kL sin kL - 1)/k^2], k^2 = M U^2/EI (the flow reduces the sag: at u = 6
     to 12 % of the sag at rest)."""
-    from varint.flowing_modes import flowing_static
+    from varint.analysis.flowing_modes import flowing_static
 
     g = 1e-4  # tip deflection ~1e-5 L: linear
 
@@ -155,10 +156,10 @@ def test_steady_sag_of_a_horizontal_flowing_cantilever():
 
 
 def test_no_flow_agrees_with_the_liquid_filled_tube_at_rest():
-    """U = 0: the flowing linearisation's bending frequencies are those of varint.coupled_modes for the same tube,
+    """U = 0: the flowing linearisation's bending frequencies are those of varint.analysis.coupled_modes for the same tube,
     closed and full of liquid at rest (lateral inertia M per length in both: consistent integral here, the labels'
     lumped masses there), to O(ds^2)."""
-    from varint.coupled_modes import coupled_modes
+    from varint.analysis.coupled_modes import coupled_modes
 
     diffs = []
     for nodes in (21, 41):

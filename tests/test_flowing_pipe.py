@@ -1,11 +1,11 @@
 """A pipe conveying fluid, stepped in time: the coupled tube (docs/theory.md §10) with the liquid flowing.
 
 The periodic pipe (rod and fluid periodic, a stiff quasistatic wall: a rigid closed liquid-filled periodic
-tube has an indeterminate pressure, varint/scene.py) carries a plug flow of speed U; a lateral velocity
+tube has an indeterminate pressure, varint/scene/schema.py) carries a plug flow of speed U; a lateral velocity
 perturbation cos(k s) starts waves exp(i (k x - omega t)).  Nothing in the discrete Lagrangian names the
 Coriolis or the centrifugal force: they come from the fluid labels moving through the Catmull–Rom
 centreline.  Truth: the dispersion relation of the flowing Timoshenko pipe
-(:func:`varint.analysis.flowing_pipe_waves`, Païdoussis vol. 1 §3.2 with shear; docs/theory.md §10.11 shows
+(:func:`varint.exact.beams.flowing_pipe_waves`, Païdoussis vol. 1 §3.2 with shear; docs/theory.md §10.11 shows
 that the closed loop's linearisation is that of the open pipe): the Coriolis term splits the two bending
 frequencies, the centrifugal one lowers them, and past U_c (where they meet) one wave grows (coupled-mode
 flutter; for the Euler–Bernoulli pipe U_c^2 = (m + M) EI k^2 / (m M)).  The frequencies and growth rates
@@ -24,9 +24,9 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.analysis import flowing_pipe_critical_speed, flowing_pipe_waves
+from varint.exact.beams import flowing_pipe_critical_speed, flowing_pipe_waves
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 
 # EI = m = M = 1 (beta = M / (m + M) = 1/2), period L = 1: U_c = 8.47 m/s (Timoshenko, 8.89 Euler–Bernoulli)
 SECTION = {"mass_per_length": 1.0, "rotary_inertia": 1e-4, "bending_stiffness": 1.0, "torsional_stiffness": 1.0,
@@ -222,9 +222,9 @@ def test_liquid_held_at_the_levels_has_no_alternating_mode():
 
 
 def test_peak_growth_rate_reads_the_rate_of_a_known_oscillation():
-    """varint.analysis.peak_growth_rate (the rate the pipe runs are judged by) on exp(a t) sin(w t), growing and
+    """varint.analysis.signals.peak_growth_rate (the rate the pipe runs are judged by) on exp(a t) sin(w t), growing and
     decaying, with a transient left out; too few peaks is a ValueError."""
-    from varint.analysis import peak_growth_rate
+    from varint.analysis.signals import peak_growth_rate
 
     t = np.linspace(0.0, 10.0, 20001)
     for a in (0.3, -0.45):

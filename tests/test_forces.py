@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from varint import build_model, make_simulation
-from varint.forces import Declaration, TipTorque, derive_invariants
-from varint.lie import cay
+from varint.terms.forces import Declaration, TipTorque, derive_invariants
+from varint.lattice.lie import cay
 
 from test_rod import rod_scene
 
@@ -103,7 +103,7 @@ def test_tip_torque_work_is_second_order_in_the_rotation():
 def test_check_lists_the_forces_and_the_derived_invariants(tmp_path, capsys):
     from varint.cli import main
 
-    from helpers import to_toml
+    from varint.scene.text import to_toml
 
     scene = {"title": "torqued free rod", "tube": {"length": 1.0, "nodes": 5, "radius": 0.01},
              "rod": {"mass_per_length": 0.3, "rotary_inertia": 1e-3, "bending_stiffness": 2.0, "torsional_stiffness": 15.0,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from varint import geometry as G
+from varint.lattice import parcels as G
 
 
 def _case(periodic, seed=0, nlab=9, N=7):

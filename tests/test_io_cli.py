@@ -14,9 +14,10 @@ import pytest
 
 from varint import SolverError, parse_scene, run_scene
 from varint.cli import main
-from varint.io import read_run
+from varint.run.io import read_run
 
-from helpers import gas_scene, to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml
 
 PULSE = [{"field": "pressure", "shape": "gaussian", "amplitude": 5e3, "center": 0.5, "width": 0.08}]
 
@@ -214,7 +215,7 @@ def test_resume_with_a_different_scene_is_refused(tmp_path, capsys):
 
 
 def test_failed_step_keeps_what_was_written(tmp_path, capsys, monkeypatch):
-    from varint import stepper
+    from varint.run import simulation as stepper
 
     f = _scene_file(tmp_path, end=1e-3)
     out = tmp_path / "fail.h5"

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 
 def test_no_wall_means_no_radius_unknowns():

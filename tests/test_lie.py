@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from varint import lie
+from varint.lattice import lie
 
 RNG = np.random.default_rng(11)
 W = RNG.standard_normal((20, 3)) * 1.5

@@ -3,7 +3,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from varint.newton import newton
+from varint.schemes.newton import newton
 
 
 def _problem(c):

@@ -10,9 +10,10 @@ import pytest
 import scipy.sparse as sp
 
 from varint import Simulation
-from varint.newton import EPS, newton
+from varint.schemes.newton import EPS, newton
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 # -- a synthetic problem with the tube's structure: unknowns are displacements z from absolute positions c,
 #    the residual sees c + z (a mass term plus a nonlinear stiffness on differences of positions)
@@ -135,7 +136,7 @@ def test_a_slow_mode_of_another_kind_is_not_taken_for_round_off():
     label's floor (one global floor did: 'stopped at the round-off floor' with that error)."""
     import scipy.sparse as sp
 
-    from varint.newton import factorize
+    from varint.schemes.newton import factorize
 
     J = sp.diags([0.99, 0.1]).tocsc()
     exact = np.array([1e-6 / 0.99, 1e-8])

@@ -16,8 +16,8 @@ import pytest
 import varint
 from varint import parse_scene, run_scene
 from varint.errors import SolverError
-from varint.geometry import parcel_volumes
-from varint.io import read_run
+from varint.lattice.parcels import parcel_volumes
+from varint.run.io import read_run
 
 
 def scene_text(model="ideal-gas", velocity=20.0, parcels=50, h=1e-4, end=0.05, ends="", extra="", nodes=21,
@@ -194,7 +194,7 @@ def test_run_file_layout_fixed_slots_nan_and_mask(tmp_path):
     assert np.array_equal(npar, mon["parcels"].values)
     for k in range(len(npar)):
         assert np.all(np.isfinite(ds["pressure"].values[k, :npar[k]])) and np.all(np.isnan(ds["pressure"].values[k, npar[k]:]))
-    from varint.io import summary
+    from varint.run.io import summary
 
     info = summary(out)  # `varint info`: the balances, not the conservation errors
     assert info["momentum_balance_relative"] < 1e-10 and info["mass_balance_relative"] < 1e-14
@@ -225,7 +225,7 @@ def test_open_terms_gradient_and_hessian_against_differences(model, wall):
     """The extended duct's potential terms (labels straddling both ends of a horn; or of a dynamic wall with perturbed
     radii, the end radii folded from the padded lattice): gradient against central differences of the energy,
     Hessian against differences of the gradient."""
-    from varint.terms import Config
+    from varint.terms.tube_potential import Config
 
     horn = "" if wall else "area_table = [[0.0, 1.2566e-3], [0.5, 2.5e-3], [1.0, 3.0e-3]]"
     density = 1.2 if model == "ideal-gas" else 1000.0

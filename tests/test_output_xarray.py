@@ -10,9 +10,10 @@ import pytest
 import xarray as xr
 
 from varint import parse_scene, run_scene
-from varint.io import read_run, units_of
+from varint.run.io import read_run, units_of
 
-from helpers import gas_scene, to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -1,4 +1,4 @@
-"""The classical linear stability of pipes conveying fluid (varint/pipe_stability.py).
+"""The classical linear stability of pipes conveying fluid (varint/exact/pipe_stability.py).
 
 Every test compares with a truth from outside the module's own methods: closed-form
 beam frequencies and divergence velocities, the Bessel-function buckling of a standing
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import optimize, special
 
-from varint import pipe_stability as ps
+from varint.exact import pipe_stability as ps
 from varint.errors import VarintError
 
 # u = 0: Euler-Bernoulli beam frequencies ω_r = λ_r² (Blevins, Formulas for natural

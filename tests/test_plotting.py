@@ -1,7 +1,7 @@
 """`varint plot`: what the figures show (scales, colour centres, single records, log axes, rod motion).
 
 The choices are tested on the pure functions and on the artists of the figures built from run
-dictionaries (as varint.io.read_run returns them), not on pixels; two smoke tests write the PNGs of
+dictionaries (as varint.run.io.read_run returns them), not on pixels; two smoke tests write the PNGs of
 real run files.
 """
 
@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import gas_scene, to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml
 
 EPS = np.finfo(float).eps
 
@@ -243,7 +244,7 @@ def test_rod_deflection_of_a_whirling_shaft_and_its_view():
 
 
 def test_section_twist_is_the_spin_about_the_axis_while_the_axis_swings():
-    from varint.lie import cay
+    from varint.lattice.lie import cay
     from varint.plotting import section_twist
 
     # a section turning about its own axis at 13 rad/s while that axis swings about z at 3 rad/s
@@ -317,7 +318,7 @@ def test_animate_writes_one_gif_frame_per_record_of_a_coupled_run(tmp_path):
     from PIL import Image
 
     from varint.plotting import animate_run, centreline_frames
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     text = (Path(__file__).resolve().parent.parent / "examples" / "water_filled_hose.toml").read_text()
     text = text.replace("end = 2.0", "end = 0.02").replace("every = 10", "every = 4")

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from varint import Simulation, SolverError
-from varint import geometry as G
+from varint.lattice import parcels as G
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -56,7 +57,7 @@ def test_folding_run_ends_with_one_line_and_keeps_its_records(tmp_path):
 
 _KERNEL_SCRIPT = textwrap.dedent("""
     import numpy as np
-    from varint import geometry as G
+    from varint.lattice import parcels as G
 
     N = 8
     ds = 1.0 / N

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.lie import cay, cay_inv
-from varint.rod_statics import lumped_mass, rod_modes, static_equilibrium
+from varint.lattice.lie import cay, cay_inv
+from varint.model.statics import lumped_mass, static_equilibrium
+from varint.analysis.rod_modes import rod_modes
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 
 SECTION = {"mass_per_length": 0.3, "rotary_inertia": 1e-4, "bending_stiffness": 2.0, "torsional_stiffness": 1.5,
            "axial_stiffness": 1e3, "shear_stiffness": 8e2}
@@ -160,7 +161,7 @@ def test_a_step_too_large_for_the_rotation_fails_with_one_line_and_keeps_the_fil
     naming the step and the node; what was written stays readable.  (Before: a traceback from a
     division by zero where an iterate reached the Cayley chart's singularity, or a wrong result.)"""
     from varint.cli import main
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     example = Path(__file__).resolve().parent.parent / "examples" / "tumbling_rod.toml"
     f = tmp_path / "big_step.toml"
@@ -223,7 +224,7 @@ def _bending(freqs, targets):
 @pytest.mark.validation
 @pytest.mark.slow  # 0.4-0.8 min: the slow tier (tests/conftest.py; CI runs it)
 def test_cantilever_frequencies_against_timoshenko_and_euler_bernoulli_order_two():
-    from varint.analysis import euler_bernoulli_cantilever, timoshenko_cantilever
+    from varint.exact.beams import euler_bernoulli_cantilever, timoshenko_cantilever
 
     sec = solid_section()
     tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"], sec["rotary_inertia"], 1.0)
@@ -266,7 +267,7 @@ def test_axial_and_torsional_wave_speeds():
 
 def test_static_cantilever_against_the_elastica():
     """Dead tip load P L^2 / EI = 4: tip rotation 64 degrees; stiff stretch/shear to compare with the inextensible elastica."""
-    from varint.analysis import elastica_cantilever_tip
+    from varint.exact.beams import elastica_cantilever_tip
 
     sec = solid_section(stretch_factor=1e6)
     EI = sec["bending_stiffness"]
@@ -298,7 +299,7 @@ def test_gravity_changes_momentum_by_exactly_m_g_h():
 
 def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
     from varint import run_scene
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     scene = rod_scene(nodes=11, h=1e-3, end=2e-2, section=STIFF, initial={"angular_velocity": [0.0, 0.0, 5.0]})
     run_scene(scene, str(tmp_path / "rod.h5"), progress=False)
@@ -317,7 +318,7 @@ def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
     J = dict(monitor_panels(run["monitors"]))["change of angular momentum [kg m2/s]"][0][1]
     assert J[0] == 0.0 and np.max(J) < 1e-12  # a free spinning rod: |J_cm - J_cm0| at round-off
     assert len(plot_run(tmp_path / "rod.h5", tmp_path / "png")) == 2
-    from varint.io import summary
+    from varint.run.io import summary
 
     d = summary(tmp_path / "rod.h5")  # what `varint info` prints
     assert d["angular_momentum_cm_deviation"] < 1e-12 and d["linear_momentum_deviation"] < 1e-12
@@ -327,7 +328,7 @@ def test_rod_run_file_has_rod_fields_and_monitors(tmp_path):
 @pytest.mark.validation
 def test_hard_stiff_shear_and_stretch_at_100x_the_explicit_limit():
     """Stretch and shear stiffness 1e4 EI/L^2; h = 100 x (2 / omega_max): stable, energy kept, bending accurate."""
-    from helpers import zero_crossing_frequency
+    from varint.analysis.signals import zero_crossing_frequency
 
     sec = solid_section(stretch_factor=1e4)
     EI = sec["bending_stiffness"]
@@ -397,14 +398,14 @@ def test_cli_static_and_modes(tmp_path, capsys):
     import json
 
     from varint.cli import main
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     example = Path(__file__).resolve().parent.parent / "examples" / "cantilever_rod.toml"
     out = tmp_path / "static.h5"
     assert main(["static", str(example), "-o", str(out)]) == 0
     run = read_run(out)
     tip = run["fields"]["rod/r"][0, -1]
-    from varint.analysis import elastica_cantilever_tip
+    from varint.exact.beams import elastica_cantilever_tip
 
     xe, ye, _ = elastica_cantilever_tip(4.0, 1.0, 1.0)  # the example's load is P L^2 / EI = 4
     # the real section stretches and shears: measured 1.6e-4 and -7.6e-5 from the inextensible elastica
@@ -434,7 +435,7 @@ def test_pieces_kernel_equals_numpy_reference(level, measure):
 @pytest.mark.parametrize("dimension", [2, 3])
 def test_accumulate_kernel_equals_numpy_reference(dimension):
     """The numba accumulation of complex-step pieces into nodal derivatives equals its NumPy twin."""
-    from varint.rod import _k_accumulate
+    from varint.terms.rod import _k_accumulate
 
     model = build_model(rod_scene(nodes=8, dimension=dimension))
     _, _, colour, direction = model.rod._cs_plan()
@@ -453,9 +454,9 @@ def test_accumulate_kernel_equals_numpy_reference(dimension):
 def test_cantilever_frequencies_from_a_time_domain_run(scheme):
     """Released from a mix of the first three modes: each modal coordinate oscillates at its Timoshenko frequency
     (outside truth for both time schemes: the midpoint and the energy-momentum step of docs/theory.md §12a)."""
-    from helpers import zero_crossing_frequency
-    from varint.analysis import timoshenko_cantilever
-    from varint.rod_statics import _retract
+    from varint.analysis.signals import zero_crossing_frequency
+    from varint.exact.beams import timoshenko_cantilever
+    from varint.model.statics import retract
 
     sec = solid_section()
     tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"], sec["rotary_inertia"], 1.0)
@@ -466,7 +467,7 @@ def test_cantilever_frequencies_from_a_time_domain_run(scheme):
     # 1 mm tip amplitude in each mode
     z = sum(X[:, i] * 1e-3 / np.max(np.abs(X[1::3, i])) for i in range(3))  # planar unknowns: (x, y, theta) per node
     Lam0, r0 = model.rod.Lam0.copy(), model.rod.r0.copy()
-    model.rod.Lam0, model.rod.r0 = _retract(Lam0, r0, z, model.rod.mask)
+    model.rod.Lam0, model.rod.r0 = retract(Lam0, r0, z, model.rod.mask)
     sim = Simulation(model, scheme=scheme)
     n = int(1.6 * 2 * math.pi / tim[0] / h)
     t, q = np.empty(n), np.empty((n, 3))
@@ -507,7 +508,7 @@ def test_euler_buckling_threshold_from_modes_about_the_loaded_equilibrium(ratio,
 
 def test_rod_resume_equals_uninterrupted(tmp_path):
     from varint import run_scene
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     scene = rod_scene(nodes=11, h=1e-2, end=0.4, section=STIFF, initial={"angular_velocity": [13.0, 40.0, -27.0]})
     run_scene(scene, str(tmp_path / "full.h5"), progress=False)

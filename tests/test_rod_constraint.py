@@ -1,11 +1,11 @@
-"""The inextensible, unshearable rod (docs/theory.md §9a, varint/rod_constraint.py).
+"""The inextensible, unshearable rod (docs/theory.md §9a, varint/terms/rod_constraint.py).
 
 * its step residual (with the constraint rows) is the gradient of the discrete action, its Newton Jacobian
   the derivative of the residual (central differences);
 * Gamma = chi holds at every level to round-off, the momenta of a free rod are conserved to round-off,
   and the energy (the momenta projected on the constraint, as RATTLE) shows no jump and no drift;
 * outside truth: a cantilever's first bending frequency is the Rayleigh beam's (Euler–Bernoulli with
-  rotary inertia, varint.analysis.timoshenko_cantilever with an unshearable section) to O(ds^2);
+  rotary inertia, varint.exact.beams.timoshenko_cantilever with an unshearable section) to O(ds^2);
 * the hard case of docs/theory.md §12: a rubber hose that the shearable rod cannot step at h = 2 ms (the
   resonance instability of its shear–rotation modes) runs stably with the constraint, with and without
   the water in it.
@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.analysis import timoshenko_cantilever
-from varint.lie import cay
-from varint.rod import pack_level, unpack_level
+from varint.exact.beams import timoshenko_cantilever
+from varint.lattice.lie import cay
+from varint.terms.rod import pack_level, unpack_level
 
-from helpers import momentum_drift, tip_frequency, to_toml
+from helpers import momentum_drift, tip_frequency
+from varint.scene.text import to_toml
 from test_rod import SECTION, rod_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -154,7 +155,7 @@ def test_cantilever_frequency_is_the_rayleigh_beam_s(scheme):
     sec = dict(SECTION, mass_per_length=0.3, bending_stiffness=2.0, rotary_inertia=1e-5)
     beam = timoshenko_cantilever(sec["bending_stiffness"], 1e7, sec["mass_per_length"], sec["rotary_inertia"], 1.0, count=1)[0]
     for N in (20, 40):
-        from varint.rod_statics import static_equilibrium
+        from varint.model.statics import static_equilibrium
 
         # a starting shape close to the first mode: the static deflection under a tiny tip load
         # (of the constrained rod: the energy-momentum step asks Gamma = chi of its initial data)
@@ -239,9 +240,9 @@ def test_static_elastica_and_modes_of_the_constrained_rod_at_second_order():
     elastica under a dead tip load P L^2/EI = 4 (tip rotation 64 degrees), and modes (the stiffness on the
     constraint's null space) against the unshearable beam with rotary inertia: both at order 2 (measured
     tip errors 1.2e-3, 2.9e-4, 7.3e-5 at 20 / 40 / 80 elements; first frequency -6.6e-4, -1.7e-4)."""
-    from varint.analysis import elastica_cantilever_tip
-    from varint.modes_api import scene_modes
-    from varint.rod_statics import static_equilibrium
+    from varint.exact.beams import elastica_cantilever_tip
+    from varint.analysis.modes import scene_modes
+    from varint.model.statics import static_equilibrium
 
     EI = 2.0
     sec = dict(SECTION, mass_per_length=0.3, bending_stiffness=EI, rotary_inertia=1e-5)
@@ -285,9 +286,9 @@ def test_constraint_static_blocks_are_the_derivative_of_the_constraint_force():
     """_k_constraint_static_blocks (the geometric stiffness of the element forces) against central differences
     of the constraint force -ds G^T lam at a bent, twisted 3D state with random element forces; and G against
     differences of the strains."""
-    from varint.rod import banded_jacobian
-    from varint.rod_constraint import constraint_static
-    from varint.rod_statics import _retract
+    from varint.terms.rod import banded_jacobian
+    from varint.terms.rod_constraint import constraint_static
+    from varint.model.statics import retract
 
     model = constrained(rod_scene(nodes=8, ends=("clamped", "free"), initial={"curvature": [0.4, 1.0, -0.6]}))
     rod = model.rod
@@ -297,7 +298,7 @@ def test_constraint_static_blocks_are_the_derivative_of_the_constraint_force():
     c, G, F, H = constraint_static(rod, Lam, r, lam)
 
     def force(z):
-        Lz, rz = _retract(Lam, r, z, rod.mask)
+        Lz, rz = retract(Lam, r, z, rod.mask)
         out = np.zeros((rod.N + 1, 6))
         out[rod.mask] = constraint_static(rod, Lz, rz, lam)[2]
         return out
@@ -306,7 +307,7 @@ def test_constraint_static_blocks_are_the_derivative_of_the_constraint_force():
     assert np.max(np.abs(H.toarray() - Hfd)) < 1e-6 * np.max(np.abs(Hfd))
 
     def strains(z):
-        Lz, rz = _retract(Lam, r, z, rod.mask)
+        Lz, rz = retract(Lam, r, z, rod.mask)
         return (rod.strains(Lz, rz)[1] - [1.0, 0.0, 0.0]).ravel()
 
     Gfd = np.empty((len(c), rod.nz))

@@ -1,4 +1,4 @@
-"""The energy-momentum step of the rod (time.scheme = "energy-momentum", varint/rod_em.py, docs/theory.md §12a).
+"""The energy-momentum step of the rod (time.scheme = "energy-momentum", varint/schemes/em_rod.py, docs/theory.md §12a).
 
 Truths: algebraic identities checked on random data (the discrete gradient's defining property; the step's energy
 and momentum balances as identities of its residual), the exact gradient of U by complex step, the midpoint scheme of
@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import fail_newton_at, to_toml
+from helpers import fail_newton_at
+from varint.scene.text import to_toml
 from varint import Simulation, build_model, parse_scene
 from varint.errors import SceneError
-from varint.lie import cay
-from varint.rod import unpack_level
-from varint.rod_em import RodEMStep, discrete_gradient, potential, strains, supports
+from varint.lattice.lie import cay
+from varint.terms.rod import unpack_level
+from varint.schemes.em_rod import RodEMStep, discrete_gradient, potential, strains, supports
 
 
 def _scene(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-3, scheme="midpoint", gravity=None, **extra):
@@ -29,8 +30,8 @@ def _scene_dict(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), 
                       axial_stiffness=100.0, shear_stiffness=60.0)
     rod = dict(sec, dimension=3, ends={"s0": "free", "sL": "free"})
     rod.update({k: v for k, v in extra.items() if v is not None})
+    rod["initial"] = {"curvature": list(curvature), "angular_velocity": list(spin)}
     d = {"title": "em", "tube": {"length": 1.0, "nodes": n + 1, "radius": 0.01}, "rod": rod,
-         "rod.initial": {"curvature": list(curvature), "angular_velocity": list(spin)},
          "time": {"step": h, "end": 1.0, "scheme": scheme}}
     if gravity is not None:
         d["environment"] = {"gravity": list(gravity)}
@@ -330,8 +331,8 @@ def test_a_resumed_run_continues_the_uninterrupted_one(tmp_path, torque):
     velocities, multipliers, last increment, floating origin, a tip torque's work; RodEMStep.state_data) and the kept
     factorisation is dropped at every checkpoint, so the run resumed from the step-30 checkpoint repeats the
     uninterrupted one bit for bit."""
-    from varint.io import read_run
-    from varint.runner import run_scene
+    from varint.run.io import read_run
+    from varint.run.runner import run_scene
 
     d = _scene_dict(h=5e-3, scheme="energy-momentum", load={"torque": TORQUE} if torque else None)
     d["time"]["end"] = 0.5
@@ -382,7 +383,7 @@ def test_supports_gravity_and_tip_force():
 
 @pytest.mark.parametrize("keep", ["newton-at-h", "half-steps"])
 def test_a_step_newton_fails_at_h_is_solved_from_two_half_steps(keep):
-    """varint.rod_em.halved_step for the rod alone (docs/theory.md §12c): the four starts at h fail (induced); Newton at
+    """varint.schemes.em_rod.halved_step for the rod alone (docs/theory.md §12c): the four starts at h fail (induced); Newton at
     h from the level two half steps reach finds the unfailing step's solution, or, failing too, the two half steps
     are the step (a step of h/2 taken twice).  Energy and momenta are conserved either way."""
     h = 5e-3
@@ -407,7 +408,7 @@ def test_a_step_newton_fails_at_h_is_solved_from_two_half_steps(keep):
 
 
 def test_a_rod_far_from_the_origin_keeps_its_digits_by_the_floating_origin():
-    """A free rod's positions are kept relative to an origin moved with node 0 on a binary grid (varint.rod.origin_shift,
+    """A free rod's positions are kept relative to an origin moved with node 0 on a binary grid (varint.terms.rod.origin_shift,
     an exact subtraction; docs/theory.md §12c).  The spinning arc, also travelling at 3 m/s and started 2.2 km away,
     steps as the same rod at the origin (its shape to the rounding of the start), its absolute positions follow, and
     energy and angular momentum about the centre of mass keep to round-off after the first step (measured 3e-15 of K0

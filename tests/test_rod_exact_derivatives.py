@@ -1,4 +1,4 @@
-"""Exact element derivatives of the rod (varint/rod.py, ``_k_element`` and friends; docs/theory.md §9).
+"""Exact element derivatives of the rod (varint/terms/rod.py, ``_k_element`` and friends; docs/theory.md §9).
 
 The analytic element gradient against the complex step of the whole discrete Lagrangian; the Newton
 Jacobian assembled from the element blocks (complex step of the analytic gradient) against central
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model
-from varint.lie import cay, cay_inv, dcay_inv
-from varint.rod import EPS_CS, _k_dcinvT, _k_element, banded_jacobian
-from varint.rod_statics import _force_jacobian, _force_map
+from varint.lattice.lie import cay, cay_inv, dcay_inv
+from varint.terms.rod import EPS_CS, _k_dcinvT, _k_element, banded_jacobian
+from varint.model.statics import force_jacobian, force_map
 
 from test_rod import SECTION, rod_scene, solid_section
 
@@ -122,8 +122,8 @@ def test_static_hessian_equals_finite_differences_of_the_force(case):
         model = build_model(rod_scene(nodes=9, initial={"angular_velocity": [0.0, 0.0, 3.0]}))
         spin, centre = np.array([0.3, 0.2, 3.0]), np.array([0.1, 0.2, 0.3])
     (L, r), _ = _levels(model, np.random.default_rng(4))
-    H = _force_jacobian(model, L, r, 0.7, spin, centre).toarray()
-    Hfd = banded_jacobian(_force_map(model, L, r, 0.7, spin, centre), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
+    H = force_jacobian(model, L, r, 0.7, spin, centre).toarray()
+    Hfd = banded_jacobian(force_map(model, L, r, 0.7, spin, centre), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
     assert np.max(np.abs(H - Hfd)) <= 1e-6 * np.max(np.abs(H)), np.max(np.abs(H - Hfd)) / np.max(np.abs(H))
 
 
@@ -137,8 +137,8 @@ def test_exact_stiffness_is_symmetric_and_annihilates_rigid_motions_to_round_off
     quotients on the exact mode, docs/performance.md); the exact one keeps both to round-off.
     """
     model = build_model(rod_scene(nodes=41, section=solid_section(rad=1e-4)))
-    K = -_force_jacobian(model, model.rod.Lam0, model.rod.r0).toarray()
-    Kfd = -banded_jacobian(_force_map(model, model.rod.Lam0, model.rod.r0), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
+    K = -force_jacobian(model, model.rod.Lam0, model.rod.r0).toarray()
+    Kfd = -banded_jacobian(force_map(model, model.rod.Lam0, model.rod.r0), np.zeros(model.nz), model.rod.mask, model.ds).toarray()
     big = np.max(np.abs(K))
     rigid = []
     for k in range(3):
@@ -159,8 +159,8 @@ def test_sparse_modes_of_a_slender_cantilever_against_euler_bernoulli():
     (1e-14) is taken; the exact stiffness has no noise to shift the modes (the 0.1 differences moved
     w1^2 by 3.5e-6 here, docs/performance.md).  Measured -2.5e-5 and -2.4e-5: the lattice error
     (-2.7e-5 for a thick rod at 100 elements)."""
-    from varint.analysis import euler_bernoulli_cantilever
-    from varint.rod_statics import rod_modes
+    from varint.exact.beams import euler_bernoulli_cantilever
+    from varint.analysis.rod_modes import rod_modes
 
     sec = solid_section(rad=1e-4)
     model = build_model(rod_scene(nodes=101, section=sec, ends=("clamped", "free")))
@@ -174,8 +174,8 @@ def test_sparse_modes_of_a_slender_cantilever_against_euler_bernoulli():
 def test_auto_modes_of_a_slender_cantilever_use_the_accurate_solver():
     """method="auto" picks the sparse solver for a rod so slender that the dense solver's round-off
     reaches the lowest frequencies (the dense one reads the first two bending frequencies 1e-2 and 4e-3 off here)."""
-    from varint.analysis import euler_bernoulli_cantilever
-    from varint.rod_statics import rod_modes
+    from varint.exact.beams import euler_bernoulli_cantilever
+    from varint.analysis.rod_modes import rod_modes
 
     sec = solid_section(rad=1e-4)
     model = build_model(rod_scene(nodes=101, section=sec, ends=("clamped", "free")))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model
-from varint.rod_statics import rod_modes
+from varint.analysis.rod_modes import rod_modes
 
 from test_rod import SECTION, rod_scene
 
@@ -40,7 +40,7 @@ def test_periodic_rod_keeps_its_momenta_and_its_period():
                                   initial={"velocity": [0.3, 0.2, -0.1], "angular_velocity": [5.0, 0.0, 0.0]}))
     assert model.invariants() == ["energy", "linear_momentum", "angular_momentum_along_the_period"]
     # a periodic wavy shape (bent in y and z, twisted), so that the motion is not rigid
-    from varint.lie import cay
+    from varint.lattice.lie import cay
 
     rod = model.rod
     s_nodes = np.linspace(0.0, 1.0, rod.N + 1)

@@ -7,12 +7,14 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.analysis import gyroscopic_modes_of, spinning_shaft_whirl
+from varint.analysis.linear import gyroscopic_modes_of
+from varint.exact.beams import spinning_shaft_whirl
 from varint.errors import SolverError
-from varint.lie import cay, dcay
-from varint.rod_statics import _retract, rod_modes, rotating_frame_kinetics
+from varint.lattice.lie import cay, dcay
+from varint.model.statics import retract, rotating_frame_kinetics
+from varint.analysis.rod_modes import rod_modes
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 from test_rod import SECTION, rod_scene
 
 # a thick shaft (radius of gyration 5.8 cm on 1 m) so that the gyroscopic splitting is large; axial and
@@ -127,7 +129,7 @@ def time_domain_whirl(nodes=21, h=1e-3, duration=3.0, amp=1e-4):
     z = np.zeros((model.N + 1, 6))
     z[:, 1] = amp * np.sin(math.pi * s)  # y-deflection in the first mode shape ...
     z[:, 5] = amp * math.pi * np.cos(math.pi * s)  # ... with the sections turned with it
-    model.rod.Lam0, model.rod.r0 = _retract(model.rod.Lam0, model.rod.r0, z[model.rod.mask], model.rod.mask)
+    model.rod.Lam0, model.rod.r0 = retract(model.rod.Lam0, model.rod.r0, z[model.rod.mask], model.rod.mask)
     sim = Simulation(model)
     mid = model.N // 2
     ts, us = [], []
@@ -221,7 +223,7 @@ def test_steady_rotation_stretches_the_rod_as_the_centrifugal_tension_says():
     """The spinning bar: EA u'' + rhoA W^2 (x + u) = 0, u(0) = 0, u'(l) = 0 (x from the centre) gives
     the elongation 2 (tan(k l)/k - l), k^2 = rhoA W^2 / EA (to first order rhoA W^2 (2 l^3/3) / EA,
     which is 1.2e-4 short: the centrifugal pull grows with the stretch).  Order 2 in ds."""
-    from varint.rod_statics import static_equilibrium
+    from varint.model.statics import static_equilibrium
 
     W, l = BLADE_SPIN[2], 0.5
     k = math.sqrt(BLADE["mass_per_length"] * W * W / BLADE["axial_stiffness"])
@@ -243,8 +245,8 @@ def test_spinning_free_rod_flap_and_lag_against_the_rotating_beam():
     tension, against shooting on the rotating Euler-Bernoulli beam; in-plane (lag) ones obey
     w_lag^2 = w_flap^2 - W^2; the rigid tilt sits at W.  Without the rotation terms the lowest flap
     frequency would be the free-free 57.8 rad/s instead of 67.5."""
-    from varint.analysis import spinning_free_rod_flap
-    from varint.rod_statics import static_equilibrium
+    from varint.exact.beams import spinning_free_rod_flap
+    from varint.model.statics import static_equilibrium
 
     W = BLADE_SPIN[2]
     flap = spinning_free_rod_flap(BLADE["bending_stiffness"], BLADE["mass_per_length"], 1.0, W, 400.0)
@@ -272,7 +274,7 @@ def test_a_run_started_in_the_steady_rotation_stays_in_it():
     """The time-domain rod released in its steady rotation keeps its shape over a full turn: the elastic
     energy of the centrifugal stretch varies by O((W h)^2) only (the discrete flow's own steady
     rotation differs from the continuous one at that order)."""
-    from varint.rod_statics import static_equilibrium
+    from varint.model.statics import static_equilibrium
 
     wobble = []
     for h in (2e-3, 1e-3):
@@ -297,9 +299,9 @@ def test_cli_static_and_modes_of_a_spinning_rod(tmp_path, capsys):
     """`varint static` writes the steady rotation (with its momenta); `modes --about static` uses it."""
     import h5py
 
-    from varint.analysis import spinning_free_rod_flap
+    from varint.exact.beams import spinning_free_rod_flap
     from varint.cli import main
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     d = {"title": "blade", "tube": {"length": 1.0, "nodes": 41, "radius": 0.01},
          "rod": dict(BLADE, ends={"s0": "free", "sL": "free"}, initial={"angular_velocity": list(BLADE_SPIN)}),
@@ -331,7 +333,7 @@ def test_scene_can_start_from_the_steady_rotation(tmp_path):
     """rod.initial.shape = "steady_rotation": the run starts stretched and stays so; the plain start
     (unstretched, spinning) rings with the stretch instead."""
     from varint import run_scene
-    from varint.io import read_run
+    from varint.run.io import read_run
 
     swings = {}
     for shape in ("steady_rotation", "given"):
@@ -365,7 +367,7 @@ def test_sparse_shift_invert_modes_equal_the_dense_ones(case):
 def test_modes_of_a_thousand_element_rod():
     """Above 1500 unknowns rod_modes goes sparse: 1000 elements (6000 unknowns) against Timoshenko."""
     from test_rod import solid_section
-    from varint.analysis import timoshenko_cantilever
+    from varint.exact.beams import timoshenko_cantilever
 
     sec = solid_section()
     tim = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"],
@@ -381,7 +383,7 @@ def test_steady_rotation_of_a_rod_spun_about_no_principal_axis_is_the_nearest_on
     to the spin (plain Newton had wandered to the chord along the spin axis, 75 degrees away)."""
     from pathlib import Path
 
-    from varint.rod_statics import static_equilibrium
+    from varint.model.statics import static_equilibrium
 
     model = build_model(parse_scene((Path(__file__).resolve().parent.parent / "examples" / "tumbling_rod.toml").read_text()))
     W = model.rod.spin
@@ -393,7 +395,7 @@ def test_steady_rotation_of_a_rod_spun_about_no_principal_axis_is_the_nearest_on
 
 def blade_lattice_flap(nodes=41):
     """The lattice's lowest elastic flap frequency about the steady rotation (nearest to 67.5 rad/s)."""
-    from varint.rod_statics import static_equilibrium
+    from varint.model.statics import static_equilibrium
 
     model = blade_model(nodes)
     Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
@@ -405,8 +407,8 @@ def blade_time_domain_flap(h, nodes=41, duration=1.0):
     """Release the spun rod from its steady rotation with a 0.1 mm out-of-plane bend in the free-free
     first mode shape; the tip's z(t) zero-crossing frequency (z is the spin axis, so out-of-plane
     motion is seen undistorted by the frame rotation)."""
-    from helpers import zero_crossing_frequency
-    from varint.rod_statics import _retract, static_equilibrium
+    from varint.analysis.signals import zero_crossing_frequency
+    from varint.model.statics import retract, static_equilibrium
 
     model = blade_model(nodes, h=h)
     Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
@@ -415,7 +417,7 @@ def blade_time_domain_flap(h, nodes=41, duration=1.0):
     z = np.zeros((model.N + 1, 6))
     z[:, 2] = 1e-4 * (shape - shape.mean())
     z[:, 4] = -1e-4 * np.gradient(shape, s)  # sections turned with the slope
-    model.rod.set_configuration(*_retract(Lam, r, z[model.rod.mask], model.rod.mask))
+    model.rod.set_configuration(*retract(Lam, r, z[model.rod.mask], model.rod.mask))
     sim = Simulation(model)
     t, tip = [], []
     for _ in range(int(round(duration / h))):

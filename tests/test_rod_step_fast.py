@@ -1,4 +1,4 @@
-"""The compiled rod step (varint/rod_step_fast.py) against the stepper's equations (varint/stepper.py ``Step``).
+"""The compiled rod step (varint/schemes/rod_compiled.py) against the stepper's equations (varint/run/simulation.py ``Step``).
 
 The fast step claims to solve the same discrete equations as ``Simulation``: its residual and Jacobian must equal
 ``Step.residual`` / ``Step.jacobian`` to round-off at any state, its states those of ``Simulation`` to the
@@ -15,11 +15,10 @@ from helpers import momentum_drift
 from test_rod import SPIN, STIFF, TUMBLE, rod_scene, solid_section
 from varint import Simulation, build_model
 from varint.errors import SolverError
-from varint.lie import cay
-from varint.rod import RATE_REFRESH_ROD
-from varint.rod_step_fast import (RATE_REFRESH_FAST, FastRodStep, _k_band_lu, _k_band_solve, _k_chart, _k_floor_ok,
-                                  supports)
-from varint.stepper import Step
+from varint.lattice.lie import cay
+from varint.terms.rod import RATE_REFRESH_ROD
+from varint.schemes.rod_compiled import (RATE_REFRESH_FAST, FastRodStep, _k_band_lu, _k_band_solve, _k_chart, _k_floor_ok, supports)
+from varint.schemes.midpoint import Step
 
 
 def _bent_spinning():
@@ -218,11 +217,11 @@ def test_floor_kernel():
 
 
 def _compare_runs(model, steps, early_stop=True, predictor="constant", rate_refresh=RATE_REFRESH_ROD, fd_refresh=True):
-    """The fast step and the stepper's own path (Step + varint.newton) side by side (with the stepper's Jacobian
+    """The fast step and the stepper's own path (Step + varint.schemes.newton) side by side (with the stepper's Jacobian
     refresh rate and ``fd_refresh=False``, the iteration counts differ by the stopping rule only)."""
     sim = Simulation(model)
     ref = Simulation(model)
-    ref._fast = None  # the stepper's own path (Step + varint.newton), which Simulation takes for all but the rod alone
+    ref._fast = None  # the stepper's own path (Step + varint.schemes.newton), which Simulation takes for all but the rod alone
     fast = FastRodStep(model, sim.h, early_stop=early_stop, predictor=predictor, rate_refresh=rate_refresh,
                        fd_refresh=fd_refresh)
     st = sim.state.copy()
@@ -290,7 +289,8 @@ def test_periodic_rod_keeps_its_period_and_momenta():
 
 
 def test_models_it_does_not_run_are_refused_in_one_line():
-    from helpers import gas_scene, make
+    from varint.scene.standard import gas_scene
+    from helpers import make
 
     _, tube = make(gas_scene())
     assert supports(tube) == "no [rod]"
@@ -316,7 +316,7 @@ def test_a_step_that_turns_a_node_by_more_than_ninety_degrees_is_refused():
 
 def test_a_failed_chord_iteration_falls_back_to_the_steppers_damped_newton():
     """With one chord iteration allowed the compiled Newton cannot converge; the step is then solved by
-    varint.newton.newton_damped on Step (the same equations) and still lands on the stepper's state."""
+    varint.schemes.newton.newton_damped on Step (the same equations) and still lands on the stepper's state."""
     model = _cantilever()
     ref = Simulation(model)
     fast = FastRodStep(model, ref.h)
@@ -367,7 +367,7 @@ def _free_loaded(case):
 def _spatial_sums(model, q0, R):
     """The sums of a step residual's rows (Step's order: translational rows in the level-n body frames) and their
     moments sum r_j x R_r,j + Lambda_j R_sigma,j, in the spatial frame, about the level's (floating) origin."""
-    from varint.rod import unpack_level
+    from varint.terms.rod import unpack_level
 
     rod = model.rod
     Lam, r, _ = unpack_level(q0[model.rod_q], rod.N)

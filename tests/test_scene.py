@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 
 from varint.cli import main
-from varint.scene import load_scene
+from varint.scene.schema import load_scene
 
-from helpers import gas_scene, to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml
 
 EXAMPLES = sorted(Path(__file__).parent.parent.joinpath("examples").glob("*.toml"))
 
@@ -182,7 +183,7 @@ def test_check_says_what_the_fluid_ends_are(tmp_path, capsys, ends, words):
 def test_check_says_the_parcels_per_element_of_a_flowing_pipe_and_warns_below_two(tmp_path, capsys, parcels, hint):
     """A rod carrying liquid through open ends: the lattice line gives the parcels per element and, below two, points
     at the label-passing instability (docs/theory.md §12)."""
-    from varint.pipe_scenes import pipe_scene_text
+    from varint.scene.standard import pipe_scene_text
 
     f = tmp_path / "pipe.toml"
     f.write_text(pipe_scene_text(nodes=21, parcels=parcels, constraint="inextensible_unshearable"))

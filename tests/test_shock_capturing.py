@@ -1,8 +1,8 @@
-"""[shock_capturing] (varint/shock_capturing.py): the viscous pressure, the mean-value pressure and the heating.
+"""[shock_capturing] (varint/terms/shock_capturing.py): the viscous pressure, the mean-value pressure and the heating.
 
 Independent truths: finite differences (kernels' derivatives, the parcel volumes' gradient, the step Jacobian),
 closed forms (the internal energy's difference quotient, the heated internal energy), the exact Riemann
-solution (varint.shocks.RiemannSolution) for Sod and two strong shock tubes, and a continuous run for a
+solution (varint.exact.shocks.RiemannSolution) for Sod and two strong shock tubes, and a continuous run for a
 resumed one.  Energy conservation and entropy monotonicity are checked at every step.
 """
 
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from varint import Simulation, SceneError, build_model, parse_scene
-from varint.io import RunWriter, read_checkpoint
-from varint.shock_capturing import heated_entropy, mean_value_pressure, viscous_pressure
-from varint.shocks import RiemannSolution
-from varint.step_terms import Derivatives
+from varint.run.io import RunWriter, read_checkpoint
+from varint.terms.shock_capturing import heated_entropy, mean_value_pressure, viscous_pressure
+from varint.exact.shocks import RiemannSolution
+from varint.terms.step import Derivatives
 
-from helpers import to_toml
+from varint.scene.text import to_toml
 
 GAMMA = 1.4
 SOD = ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1))
@@ -337,11 +337,11 @@ def test_a_predictor_that_folds_a_label_is_retried_from_rest():
 
 # -- the swelling tube: dynamic wall, tube.area_table (SwellingShockCapturing) ---------------------------------
 
-from varint import terms as T  # noqa: E402
-from varint.geometry import parcel_derivatives, parcel_volumes  # noqa: E402
-from varint.shock_capturing import SwellingShockCapturing, avf_volume_gradients  # noqa: E402
+from varint.terms import tube_potential as T  # noqa: E402
+from varint.lattice.parcels import parcel_derivatives, parcel_volumes  # noqa: E402
+from varint.terms.shock_capturing import SwellingShockCapturing, avf_volume_gradients  # noqa: E402
 
-from helpers import RUBBER_WALL, gas_scene  # noqa: E402
+from varint.scene.standard import RUBBER_WALL, gas_scene  # noqa: E402
 
 TUBE_LAW_WALL = {"model": "dynamic", "law": "tube-law", "thickness": 1.0e-3, "density": 1522.0,
                  "youngs_modulus": 5.0e6, "poisson_ratio": 0.5, "tension": 3.0}
@@ -371,7 +371,7 @@ def _lattice(periodic, seed, N=6, M=5, step=0.15):
 @pytest.mark.parametrize("periodic", [False, True])
 def test_parcel_volume_discrete_gradient_is_exact_and_second_order(periodic):
     """Gbar_k . (c1 - c0) = V_k(c1) - V_k(c0) to round-off (labels crossing nodes included), and Gbar_k -> grad V_k at
-    the midpoint at second order as the step shrinks (against the analytic gradient of varint.geometry; once the
+    the midpoint at second order as the step shrinks (against the analytic gradient of varint.lattice.parcels; once the
     short segments no longer cross a node, where grad V is only Lipschitz)."""
     ds, s0, s1, R0, R1 = _lattice(periodic, 3, step=0.8)
     G = avf_volume_gradients(s0, s1, R0, R1, ds, periodic)
@@ -605,9 +605,9 @@ def test_without_the_section_the_wall_tube_has_no_force():
     assert sim.state.data is None and np.array_equal(model.tube.S, S0)
 
 
-# -- Christensen's limiter (varint.shock_capturing.limited) ----------------------------------------------------
+# -- Christensen's limiter (varint.terms.shock_capturing.limited) ----------------------------------------------------
 
-from varint.shock_capturing import _limiter, limited  # noqa: E402
+from varint.terms.shock_capturing import _limiter, limited  # noqa: E402
 
 
 def _psi_reference(du, periodic):

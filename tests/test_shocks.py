@@ -1,4 +1,4 @@
-"""Shock analysis (varint/shocks.py, docs/theory.md §11): each against an outside truth.
+"""Shock analysis (varint/exact/shocks.py, docs/theory.md §11): each against an outside truth.
 
 * the exact Riemann solver against Toro's Table 4.3 (E. F. Toro, Riemann Solvers and Numerical Methods
   for Fluid Dynamics, tests 1-5 of Table 4.1) and, independently, against the classical jump
@@ -17,7 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from varint import shocks as S
+from varint.analysis.shock_measure import measure_shock
+from varint.exact import shocks as S
 from varint.cli import main
 
 GAMMA = 1.4
@@ -328,7 +329,7 @@ def _write_sod_run(path, M=400, times=(0.1, 0.2), perturb=1.0, wall=True):
 def test_measure_shock_on_the_exact_sod_solution(tmp_path):
     path = tmp_path / "sod.h5"
     sol = _write_sod_run(path)
-    m = S.measure_shock(path)
+    m = measure_shock(path)
     assert m["speed"] == pytest.approx(sol.shock_speeds()[1], rel=2e-3)
     assert m["jumps"]["p"] == pytest.approx(0.1 - sol.p_star, rel=1e-12)
     assert m["jumps"]["R"] == 0.0
@@ -336,14 +337,14 @@ def test_measure_shock_on_the_exact_sod_solution(tmp_path):
     # a 5 % error in the density behind is seen in the residuals
     bad = tmp_path / "bad.h5"
     _write_sod_run(bad, perturb=1.05)
-    assert S.measure_shock(bad)["relative"]["mass"] > 2e-2
+    assert measure_shock(bad)["relative"]["mass"] > 2e-2
 
 
 def test_measure_shock_needs_two_records(tmp_path):
     path = tmp_path / "one.h5"
     _write_sod_run(path, times=(0.1,))
     with pytest.raises(S.ShockError, match="record after the first"):
-        S.measure_shock(path)
+        measure_shock(path)
 
 
 # --- [initial.traveling_shock] ------------------------------------------------------------------------
@@ -376,9 +377,9 @@ end = 5e-6
 @pytest.mark.parametrize("model", ["dynamic", "quasistatic"])
 def test_initial_traveling_shock_fields_are_the_profile(model):
     """The initial fields (parcel densities and pressures, label velocities, nodal radii) are the
-    traveling-wave profile of varint.shocks with the shock at `position`; the scene steps."""
+    traveling-wave profile of varint.exact.shocks with the shock at `position`; the scene steps."""
     import varint
-    from varint.scene import parse_scene
+    from varint.scene.schema import parse_scene
 
     text = SCENE_TS.format(model=model, a="a = 0.4782\n" if model == "dynamic" else "", speed=447.0)
     scene = parse_scene(text)
@@ -412,7 +413,7 @@ def test_initial_traveling_shock_fields_are_the_profile(model):
 
 def test_initial_traveling_shock_refuses_what_it_cannot_start():
     from varint.errors import SceneError
-    from varint.scene import parse_scene
+    from varint.scene.schema import parse_scene
 
     with pytest.raises(SceneError, match=r"initial\.traveling_shock\.speed: .*admissible range 340\.294 < c < 488"):
         parse_scene(SCENE_TS.format(model="dynamic", a="a = 0.4782\n", speed=600.0))

@@ -4,9 +4,10 @@ restart state: written into the checkpoint slot, read back, restored into the mo
 import numpy as np
 
 from varint import Simulation
-from varint.io import RunWriter, read_checkpoint
+from varint.run.io import RunWriter, read_checkpoint
 
-from helpers import gas_scene, make
+from varint.scene.standard import gas_scene
+from helpers import make
 
 
 def test_state_data_goes_through_the_checkpoint_and_back_into_the_model(tmp_path, monkeypatch):

@@ -8,15 +8,16 @@ from pathlib import Path
 
 import pytest
 
-from varint.analysis import spinning_shaft_whirl
+from varint.exact.beams import spinning_shaft_whirl
 from varint.cli import main
 from varint.errors import SceneError, VarintError
-from varint.modes_api import strongest
-from varint.scene import parse_scene
-from varint.sweep import parse_vary, point_numbers, point_texts, set_key, to_toml
+from varint.analysis.modes import strongest
+from varint.scene.schema import parse_scene
+from varint.sweep import parse_vary, point_numbers, point_texts
+from varint.scene.text import set_key, to_toml
 
-from helpers import gas_scene
-from helpers import to_toml as dict_to_toml
+from varint.scene.standard import gas_scene
+from varint.scene.text import to_toml as dict_to_toml
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SPIN_KEY = "rod.initial.angular_velocity[0]"
@@ -184,7 +185,7 @@ def _coarse_shaft(tmp_path):
 
 def test_modes_sweep_of_the_spinning_shaft(tmp_path, capsys):
     """Lowest frequency against the spin rate, seen from the spinning frame (docs/validation.md, "Spinning shaft"):
-    at rest the first bending frequency; spinning, the forward whirl |w_f - Omega| (theory: varint.analysis.spinning_shaft_whirl).
+    at rest the first bending frequency; spinning, the forward whirl |w_f - Omega| (theory: varint.exact.beams.spinning_shaft_whirl).
     The same table from 1 worker as from 2."""
     scene = _coarse_shaft(tmp_path)
     out = tmp_path / "sweep"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from varint.thermo import IdealGas, Tait
+from varint.terms.thermo import IdealGas, Tait
 
 EOS = [IdealGas(1.4, 287.05), Tait(1000.0, 1e5, 2.2e9, 7.15), Tait(1000.0, 1e5, 2.2e9, 1.0)]
 

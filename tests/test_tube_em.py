@@ -1,7 +1,7 @@
-"""The energy-momentum step of the coupled tube, rod + wall + fluid (varint/tube_em.py, docs/theory.md §12b).
+"""The energy-momentum step of the coupled tube, rod + wall + fluid (varint/schemes/em_tube.py, docs/theory.md §12b).
 
 * the kernels: Catmull-Rom weights and their divided differences, parcel volumes, scalar divided differences,
-  against independent references (varint/coupled_geometry.py's compiled kernels, difference quotients);
+  against independent references (varint/lattice/centreline.py's compiled kernels, difference quotients);
 * the discrete gradient: U(q_1) - U(q_0) equals its work on the increment for random pairs of configurations
   (gas, barotropic liquid with the tube law, incompressible liquid; rigid and dynamic walls);
 * the step's defining identities for ANY unknowns z: H_1 - H_0 = (dq/h) . R_q(z) - (the multipliers' work on the
@@ -17,12 +17,13 @@ import numpy as np
 import pytest
 
 from varint import Simulation, build_model, parse_scene
-from varint.coupled_geometry import centreline_weights, stretched_volumes
+from varint.lattice.centreline import centreline_weights, stretched_volumes
 from varint.errors import SceneError, SolverError
-from varint.lie import cay
-from varint.tube_em import TubeEMStep, label_weights, label_weights_dd, scalar_dd
+from varint.lattice.lie import cay
+from varint.schemes.em_tube import TubeEMStep, label_weights, label_weights_dd, scalar_dd
 
-from helpers import fail_newton_at, tip_frequency, to_toml
+from helpers import fail_newton_at, tip_frequency
+from varint.scene.text import to_toml
 from test_coupled_tube import GAS, LIQUID, BARO, SECTION, WALL, coupled_scene, liquid_cantilever
 
 SPIN = {"curvature": [0.3, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]}
@@ -132,7 +133,7 @@ def test_the_discrete_gradient_is_exact(case):
 
 def _constraint_values(st, r, D, s, X, R):
     """g (orthonormality, rod_em's pairs), c (labels, in the step's frames), V (parcels), Gamma (elements)."""
-    from varint.rod_em import _PAIRS, strains
+    from varint.schemes.em_rod import _PAIRS, strains
 
     C = np.swapaxes(D, 1, 2) @ D
     g = np.stack([C[:, i, j] - (1.0 if i == j else 0.0) for i, j in _PAIRS], -1)
@@ -187,12 +188,12 @@ def test_energy_and_momenta_identities_hold_for_any_unknowns(case):
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_the_compiled_loops_are_the_numpy_ones(case):
-    """varint/tube_em_kernels.py against the numpy reference, real iterates and complex-step batches (the Jacobian's):
+    """varint/schemes/em_tube_kernels.py against the numpy reference, real iterates and complex-step batches (the Jacobian's):
     the parcel volumes and the whole residual for labels moved across elements, for labels held (the t0 = t1
     branch), on the level itself, and for labels moved exactly onto nodes (where the branches meet); the labels'
     constraint with labels crossing up to three elements; to round-off."""
-    from varint import tube_em_kernels as kernels
-    from varint.tube_em import _MQ
+    from varint.schemes import em_tube_kernels as kernels
+    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model(case), 1e-3)
     rng = np.random.default_rng(5)
@@ -237,8 +238,8 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
     """A label exactly on a node is at t = 1 on one element and t = 0 on the next: only the element that owns it
     passes a complex step through (tube_em._clip_owned), so dV/ds by complex step is the volumes' derivative (V is
     C^1 in s), measured by central differences, not twice it (as it was before)."""
-    from varint import tube_em_kernels as kernels
-    from varint.tube_em import _MQ
+    from varint.schemes import em_tube_kernels as kernels
+    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model("gas-pressurised-on-nodes"), 1e-3)
     on_node = np.abs(st.s / st.ds - np.rint(st.s / st.ds)) < 1e-12
@@ -264,10 +265,10 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
 
 
 def test_the_compiled_rod_discrete_gradient_is_rod_em_s():
-    """varint.tube_em_kernels.rod_discrete_gradient against varint.rod_em.discrete_gradient with a stress, on random
+    """varint.schemes.em_tube_kernels.rod_discrete_gradient against varint.schemes.em_rod.discrete_gradient with a stress, on random
     directors (not orthonormal) and a complex batch."""
-    from varint.rod_em import discrete_gradient
-    from varint.tube_em_kernels import rod_discrete_gradient
+    from varint.schemes.em_rod import discrete_gradient
+    from varint.schemes.em_tube_kernels import rod_discrete_gradient
 
     rng = np.random.default_rng(7)
     N, ds = 5, 0.2
@@ -417,8 +418,8 @@ def test_a_scene_file_runs_writes_hdf5_and_resumes_bit_for_bit(tmp_path):
     """`varint run` route: the scene runs through Simulation and the HDF5 writer (energy conserved in the written
     monitors); the checkpoint carries the step's own state (TubeEMStep.state_data) and drops its factorisation, so the
     run resumed between two records repeats the uninterrupted one bit for bit."""
-    from varint.io import read_run
-    from varint.runner import run_scene
+    from varint.run.io import read_run
+    from varint.run.runner import run_scene
 
     scene = parse_scene(_scene_text())
     full, part = tmp_path / "full.h5", tmp_path / "part.h5"
@@ -487,7 +488,7 @@ def test_a_tube_far_from_the_origin_keeps_its_digits_by_the_floating_origin():
 
 @pytest.mark.parametrize("case", ["gas-dynamic", "liquid-dynamic"])
 def test_a_dead_tip_torque_turns_j_by_h_t_per_step_and_does_its_work(case):
-    """The tip torque of varint.rod_em.tip_torque_forces on the free spinning tube: each step changes J by exactly
+    """The tip torque of varint.schemes.em_rod.tip_torque_forces on the free spinning tube: each step changes J by exactly
     h T (Euler's second law; measured to 7e-16 of abs(J)) and P not at all (2e-15); E - (the torque's work) is conserved to
     the solver's tolerance (3.7e-13 of K0 with the gas, whose internal energy is 10^3 K0; 9e-15 with water)."""
     from test_coupled_tube import SECTION
@@ -510,7 +511,7 @@ def test_a_dead_tip_torque_turns_j_by_h_t_per_step_and_does_its_work(case):
     assert abs(st.energy() - st.work - E0) < 1e-11 * K0, (st.energy() - st.work - E0) / K0
 
 
-# -- a step Newton cannot solve at h (varint.rod_em.halved_step, docs/theory.md §12c) ----------------------------------
+# -- a step Newton cannot solve at h (varint.schemes.em_rod.halved_step, docs/theory.md §12c) ----------------------------------
 
 
 @pytest.mark.parametrize("keep", ["newton-at-h", "half-steps"])

@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 
 from varint import Simulation
-from varint.analysis import dispersion_branches, modes, webster_frequencies
+from varint.exact.waves import dispersion_branches, webster_frequencies
+from varint.analysis.linear import modes
 
-from helpers import AIR, gas_scene, make, zero_crossing_frequency
+from varint.scene.standard import AIR, gas_scene
+from helpers import make
+from varint.analysis.signals import zero_crossing_frequency
 
 pytestmark = pytest.mark.validation
 
@@ -128,7 +131,7 @@ def test_webster_horn_modes():
 def test_sparse_tube_modes_equal_the_dense_ones():
     """modes(method="sparse") (shift-invert Lanczos, used above 3000 inertial unknowns) returns the
     dense solver's lowest modes; a 2000-parcel tube (4000 unknowns) takes it by default."""
-    from varint.analysis import DENSE_TUBE_MODES_LIMIT
+    from varint.analysis.linear import DENSE_TUBE_MODES_LIMIT
 
     _, small = make(gas_scene(nodes=33, parcels=32))
     dense = np.array([m["frequency"] for m in modes(small, count=8, method="dense")])

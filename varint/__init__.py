@@ -11,13 +11,13 @@ Public API::
 The discrete Lagrangian and its stationarity conditions are in docs/theory.md.
 """
 
-__version__ = "0.2.0.dev0"
-
+from .version import __version__  # noqa: E402
 from .errors import OutputError, SceneError, SolverError, VarintError  # noqa: E402
-from .model import Model, build_model  # noqa: E402
-from .runner import make_simulation, run_scene  # noqa: E402
-from .scene import Scene, load_scene, parse_scene  # noqa: E402
-from .stepper import Simulation, State  # noqa: E402
+from .model.model import Model, build_model  # noqa: E402
+from .run.runner import make_simulation, run_scene  # noqa: E402
+from .scene.schema import Scene, load_scene, parse_scene  # noqa: E402
+from .run.simulation import Simulation  # noqa: E402
+from .schemes.state import State  # noqa: E402
 
 __all__ = ["__version__", "load_scene", "parse_scene", "Scene", "build_model", "Model", "Simulation", "State",
            "run_scene", "make_simulation", "VarintError", "SceneError", "SolverError", "OutputError"]

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from . import __version__
+from .version import __version__
 from .errors import VarintError
 
 __all__ = ["main"]
@@ -41,7 +41,7 @@ class _Interrupted(Exception):
 
 
 def _load_scene(path):
-    from .scene import load_scene
+    from .scene.schema import load_scene
 
     return load_scene(path)
 
@@ -60,7 +60,7 @@ def _resumable_records(path, scene):
 
 
 def cmd_run(args):
-    from .runner import check_output, default_output, run_scene
+    from .run.runner import check_output, default_output, run_scene
 
     scene = _load_scene(args.scene)
     out = args.output or default_output(scene, args.scene)
@@ -93,7 +93,7 @@ def _ends_text(scene):
 
 
 def cmd_check(args):
-    from .model import build_model
+    from .model.model import build_model
 
     scene = _load_scene(args.scene)
     model = build_model(scene)
@@ -136,7 +136,7 @@ def cmd_check(args):
 
 
 def cmd_info(args):
-    from .io import summary
+    from .run.io import summary
 
     d = summary(args.file)
     if args.json:
@@ -164,7 +164,7 @@ def cmd_plot(args):
 
 
 def cmd_modes(args):
-    from .modes_api import scene_modes
+    from .analysis.modes import scene_modes
 
     d = scene_modes(_load_scene(args.scene), count=args.count, about=args.about, source=args.scene)
     if "remark" in d:
@@ -190,10 +190,10 @@ def cmd_static(args):
     import numpy as np
 
     from .errors import VarintError as _VE
-    from .model import build_model
-    from .rod_statics import static_equilibrium
-    from .runner import check_output, default_output
-    from .stepper import Simulation
+    from .model.model import build_model
+    from .model.statics import static_equilibrium
+    from .run.runner import check_output, default_output
+    from .run.simulation import Simulation
 
     scene = _load_scene(args.scene)
     out = args.output or default_output(scene, args.scene, kind="static")
@@ -211,7 +211,7 @@ def cmd_static(args):
     _write_static(out, scene, Simulation(model), info["load_steps"], extra)
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
-    from .modes_api import _turned
+    from .analysis.modes import _turned
 
     if _turned(info):
         what += f", with {_turned(info)}"
@@ -222,7 +222,7 @@ def cmd_static(args):
 
 def _write_static(out, scene, sim, load_steps, extra=None):
     """A static file: the run-file layout with one record (the simulation's state) and the static attributes."""
-    from .io import RunWriter
+    from .run.io import RunWriter
 
     w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
     try:
@@ -236,12 +236,13 @@ def _write_static(out, scene, sim, load_steps, extra=None):
 
 
 def _static_coupled(args, scene, model, out):
-    """``varint static`` of the coupled tube (varint.coupled_modes.coupled_static): one record, at rest."""
+    """``varint static`` of the coupled tube (varint.analysis.coupled_modes.coupled_static): one record, at rest."""
     import numpy as np
 
-    from .coupled_modes import coupled_static
-    from .rod import pack_level
-    from .stepper import Simulation, State
+    from .analysis.coupled_modes import coupled_static
+    from .terms.rod import pack_level
+    from .run.simulation import Simulation
+    from .schemes.state import State
 
     (Lam, r, zt), info = coupled_static(model)
     t = model.tube
@@ -259,7 +260,8 @@ def _static_coupled(args, scene, model, out):
 
 def cmd_shock(args):
     """``varint shock SCENE --speed C | --strength Z``: the traveling shock of the scene's tube (docs/theory.md §11)."""
-    from .shocks import tube_of_scene, traveling_shock, traveling_shock_of_strength
+    from .scene.derived import tube_of_scene
+    from .exact.shocks import traveling_shock, traveling_shock_of_strength
 
     scene = _load_scene(args.scene)
     tube = tube_of_scene(scene)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import read_run
+from .run.io import read_run
 
 __all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor",
            "undisturbed", "diverging_limits", "rod_deflection", "rod_view_mode", "section_twist"]
@@ -549,7 +549,7 @@ def _title(run):
 
 
 def monitors_figure(run):
-    """matplotlib Figure of a run's monitors (``run`` as :func:`varint.io.read_run` returns it), or None."""
+    """matplotlib Figure of a run's monitors (``run`` as :func:`varint.run.io.read_run` returns it), or None."""
     if len(run["time"]) == 0 or not run["monitors"]:
         return None
     return _monitors_figure(run["time"], monitor_panels(run["monitors"]), _title(run))

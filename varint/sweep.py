@@ -2,10 +2,10 @@
 
 A sweep point is the scene's TOML text with the varied keys set (parsed with :mod:`tomllib`, the
 values set, written back by :func:`to_toml`).  Every point is validated by
-:func:`varint.scene.parse_scene` before anything runs.  Each point is then one task on a
+:func:`varint.scene.schema.parse_scene` before anything runs.  Each point is then one task on a
 ``dask.distributed`` cluster (a local one, one single-threaded worker process per core, or an
 existing one by its scheduler's address): ``run`` integrates it into ``DIR/point_NNNN.h5``,
-``modes`` computes its modes as ``varint modes`` does (:func:`varint.modes_api.scene_modes`).
+``modes`` computes its modes as ``varint modes`` does (:func:`varint.analysis.modes.scene_modes`).
 ``DIR/sweep.csv`` gets one row per point as the points finish (docs/output.md); a point that fails
 with a :class:`VarintError` is a row with its one-line error; a re-run skips the points already in
 the table (by their key values).
@@ -14,12 +14,10 @@ the table (by their key values).
 from __future__ import annotations
 
 import csv
-import difflib
 import itertools
 import json
 import math
 import os
-import re
 import sys
 import tomllib
 from pathlib import Path
@@ -27,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import OutputError, SceneError, VarintError
+from .scene.text import KeyPathError, resolve_key, set_key, to_toml
 
 __all__ = ["Vary", "parse_vary", "resolve_key", "set_key", "to_toml", "point_texts", "sweep", "compute_point", "finished_points", "point_numbers"]
 
@@ -45,14 +44,11 @@ class SweepError(VarintError):
 # keys
 
 
-_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
-
-
 class Vary:
     """One ``--vary`` option resolved against the scene schema.
 
     ``key``: as written (the CSV column); ``path``: ``[(name, index or None), ...]``;
-    ``decl``: the :class:`varint.scene.Key` declaration; ``values``: the values, typed by its kind.
+    ``decl``: the :class:`varint.scene.schema.Key` declaration; ``values``: the values, typed by its kind.
     """
 
     def __init__(self, key, path, decl, values):
@@ -60,58 +56,6 @@ class Vary:
 
     def __repr__(self):  # pragma: no cover - debugging aid
         return f"Vary({self.key!r}, {self.values!r})"
-
-
-def _all_keys():
-    from .scene import SCHEMA
-
-    out = []
-    for sec, keys in SCHEMA.items():
-        prefix = sec.replace("[]", "[0]")
-        out += [f"{prefix}.{k.name}" if prefix else k.name for k in keys]
-    return out
-
-
-def resolve_key(key):
-    """``"fluid.perturbation[0].amplitude"`` -> (path, Key declaration); raises :class:`SweepError`.
-
-    Tables are dotted; an array of tables takes an index (``[0]``); a vector key (kind ``vec3``)
-    takes the index of its component.
-    """
-    from .scene import SCHEMA
-
-    where = f"--vary {key}"
-    parts = key.split(".")
-    path = []
-    for p in parts:
-        m = _SEGMENT.match(p)
-        if not m:
-            raise SweepError(f"{where}: not a dotted scene key (like rod.initial.angular_velocity[0] or time.step)")
-        path.append((m.group(1), None if m.group(2) is None else int(m.group(2))))
-    table = ".".join(n + ("[]" if i is not None else "") for n, i in path[:-1])
-    leaf, index = path[-1]
-    decl = None
-    if table in SCHEMA:
-        decl = next((k for k in SCHEMA[table] if k.name == leaf), None)
-    if decl is None:
-        bare = re.sub(r"\[\d+\]", "[0]", key)
-        near = difflib.get_close_matches(bare, _all_keys(), n=1, cutoff=0.6)
-        hint = f" (did you mean '{near[0]}'?)" if near else ""
-        arrays = [n[:-2] for n in SCHEMA if n.endswith("[]")]
-        for n in arrays:  # an array of tables written without its index
-            if (table + ".").startswith(n + ".") and f"{n}[]" not in table:
-                hint = f" ({n} is an array of tables: index it, e.g. {n}[0].{key[len(n) + 1:]})"
-        raise SweepError(f"{where}: unknown scene key{hint}")
-    if decl.kind == "vec3":
-        if index is None:
-            raise SweepError(f"{where}: is a vector; vary one component, e.g. {key}[0]")
-        if index > 2:
-            raise SweepError(f"{where}: a vector has components [0], [1], [2]")
-    elif index is not None:
-        raise SweepError(f"{where}: is a single value ({decl.kind}), not a vector: remove [{index}]")
-    elif decl.kind not in ("float", "int", "str"):
-        raise SweepError(f"{where}: a {decl.kind} key cannot be varied")
-    return path, decl
 
 
 def _number(text, decl, key):
@@ -190,107 +134,8 @@ def _fmt(v):
     return str(v)
 
 
-def set_key(doc, path, value):
-    """Set ``path`` (from :func:`resolve_key`) in the TOML document ``doc`` (a dict, changed in place).
-
-    Missing tables are created; an array-of-tables entry must exist; a vector component starts from
-    the key's default when the vector is absent.  Raises :class:`SweepError`.
-    """
-    from .scene import REQUIRED, SCHEMA
-
-    node = doc
-    shown = []
-    for name, index in path[:-1]:
-        shown.append(name)
-        if index is None:
-            child = node.setdefault(name, {})
-            if not isinstance(child, dict):
-                raise SweepError(f"{'.'.join(shown)}: is not a table in the scene")
-            node = child
-        else:
-            arr = node.get(name)
-            if not isinstance(arr, list) or index >= len(arr):
-                have = len(arr) if isinstance(arr, list) else 0
-                raise SweepError(f"{'.'.join(shown)}[{index}]: the scene has {have} [[{'.'.join(shown)}]] "
-                                 f"table{'s' if have != 1 else ''}")
-            node = arr[index]
-            shown[-1] += f"[{index}]"
-    name, index = path[-1]
-    if index is None:
-        node[name] = value
-        return doc
-    vec = node.get(name)
-    if vec is None:
-        table = ".".join(n + ("[]" if i is not None else "") for n, i in path[:-1])
-        decl = next(k for k in SCHEMA[table] if k.name == name)
-        vec = list(decl.default) if decl.default not in (None, REQUIRED) else [0.0, 0.0, 0.0]
-    if not isinstance(vec, list) or index >= len(vec):
-        raise SweepError(f"{'.'.join(shown + [name])}: is not a vector with a component [{index}] in the scene")
-    vec = list(vec)
-    vec[index] = value
-    node[name] = vec
-    return doc
-
-
 # ---------------------------------------------------------------------------
 # TOML out
-
-
-_BARE = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def _key(k):
-    return k if _BARE.match(k) else json.dumps(k, ensure_ascii=False)
-
-
-def _value(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)  # a JSON string is a TOML basic string
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(f"cannot write {type(v).__name__} as TOML")  # dates: no scene key has one
-
-
-def _is_table_array(v):
-    return isinstance(v, list) and v and all(isinstance(x, dict) for x in v)
-
-
-def _table(lines, prefix, d):
-    for k, v in d.items():
-        if not isinstance(v, dict) and not _is_table_array(v):
-            lines.append(f"{_key(k)} = {_value(v)}")
-    for k, v in d.items():
-        name = f"{prefix}.{_key(k)}" if prefix else _key(k)
-        if isinstance(v, dict):
-            lines.append(f"\n[{name}]")
-            _table(lines, name, v)
-        elif _is_table_array(v):
-            for item in v:
-                lines.append(f"\n[[{name}]]")
-                _table(lines, name, item)
-
-
-def to_toml(doc):
-    """A TOML document (as :func:`tomllib.loads` returns it) as text; ``tomllib.loads(to_toml(d)) == d``.
-
-    Tables become ``[sections]`` (inline tables too), arrays of tables ``[[sections]]``, at any depth.
-    Comments of the original are not kept.
-    """
-    lines = []
-    _table(lines, "", doc)
-    return "\n".join(lines).lstrip("\n") + "\n"
 
 
 # ---------------------------------------------------------------------------
@@ -303,7 +148,7 @@ def point_texts(text, varies, source=None):
     Raises :class:`SweepError` (bad key for this scene) or :class:`SceneError` (an invalid point), naming
     the point and its key values, before anything runs.
     """
-    from .scene import parse_scene
+    from .scene.schema import parse_scene
 
     base = tomllib.loads(text)
     out = []
@@ -313,7 +158,7 @@ def point_texts(text, varies, source=None):
         try:
             for v, x in zip(varies, values):
                 set_key(doc, v.path, x)
-        except SweepError as exc:
+        except KeyPathError as exc:
             raise SweepError(f"{source + ': ' if source else ''}{exc}") from None
         t = to_toml(doc)
         try:
@@ -361,17 +206,17 @@ def compute_point(text, analysis, out=None, count=20, about="initial"):
     A :class:`VarintError` is the point's failure; any other exception is a bug in varint or a lost
     worker, recorded as status "crashed" (retried by a re-run).
     """
-    from .scene import parse_scene
+    from .scene.schema import parse_scene
 
     try:
         with np.errstate(all="ignore"):  # as the CLI: Newton's excursions fail with one line, not warnings
             scene = parse_scene(text)
             if analysis == "modes":
-                from .modes_api import scene_modes, strongest
+                from .analysis.modes import scene_modes, strongest
 
                 return {"status": "ok", **strongest(scene_modes(scene, count=count, about=about)["modes"])}
-            from .io import read_run, summary
-            from .runner import run_scene
+            from .run.io import read_run, summary
+            from .run.runner import run_scene
 
             if out is not None and os.path.exists(out):
                 os.remove(out)  # left by an unfinished attempt (finished points are never computed again)
@@ -503,7 +348,7 @@ def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=Non
     Raises :class:`VarintError` (one line per problem) before anything runs when a --vary, a point
     or the output directory is wrong.
     """
-    from .scene import load_scene
+    from .scene.schema import load_scene
 
     if analysis not in ANALYSES:
         raise SweepError(f"--analysis: choose one of {', '.join(ANALYSES)}, got {analysis!r}")

@@ -1,6 +1,6 @@
 
 import numpy as np, math
-from varint.lie import cay, cay_inv, hat
+from varint.lattice.lie import cay, cay_inv, hat
 rng=np.random.default_rng(3)
 N=6; L=1.2; ds=L/N; M=9; h=0.05
 rhoA=0.7; Iner=np.array([0.02,0.01,0.01]); Jst=np.array([3.,2.,2.5]); Kst=np.array([50.,30.,40.])

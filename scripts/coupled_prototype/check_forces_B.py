@@ -1,5 +1,5 @@
 from pathlib import Path; exec((Path(__file__).parent / 'check_coupled_B.py').open().read().split("# (a) invariance")[0])
-from varint.lie import dcay_inv
+from varint.lattice.lie import dcay_inv
 q1=[q0[0]+0.01*rng.normal(size=q0[0].shape),np.array([q0[1][j]@cay(0.05*rng.normal(size=3)) for j in range(N+1)]),
     q0[2]+0.001*rng.normal(size=N+1),q0[3].copy()]
 q1[3][1:-1]+=0.05*ds*rng.normal(size=M-1)

@@ -1,6 +1,6 @@
 
 import numpy as np
-from varint.lie import cay, cay_inv, hat, dcay_inv
+from varint.lattice.lie import cay, cay_inv, hat, dcay_inv
 rng=np.random.default_rng(1)
 I=np.diag([2.,1.3,0.7]); h=0.1
 xi=rng.normal(size=3)*0.7

@@ -1,0 +1,122 @@
+"""The modes of a scene, as ``varint modes`` and ``varint sweep --analysis modes`` compute them.
+
+One code path for both: the model linearised about the scene's initial state (a spinning rod: about
+that rotation, seen from the spinning frame) or, with ``about="static"`` (rods), about its loaded
+static equilibrium / steady rotation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import VarintError
+
+__all__ = ["scene_modes", "strongest"]
+
+
+def _turned(info):
+    """How far a steady-rotation search turned the rod, in words ("" when not noticeably)."""
+    deg = info.get("turned_deg", 0.0)
+    return (f"the rod's end-to-end chord turned by {deg:.1f} deg from the scene's shape (spin about no principal "
+            "axis of it)") if deg > 1.0 else ""
+
+
+def _loads(model):
+    """The scene keys of a rod's static loads (empty when there are none)."""
+    names = [("rod.load.force", model.force), ("rod.load.torque", model.torque), ("environment.gravity", model.g)]
+    return [name for name, v in names if np.any(v)]
+
+
+def scene_modes(scene, count=20, about="initial", source=None):
+    """The ``count`` lowest modes of ``scene``.
+
+    Returns ``{"modes": [{"frequency": rad/s, "growth_rate": 1/s}, ...], "about": about}`` with, when
+    they apply, ``"flow"`` (a tube conveying fluid, varint/analysis/flowing_modes.py: its U and Païdoussis' u, beta,
+    gamma; growth rates there are signed, negative for a decaying mode), ``"note"`` (modes about an unloaded state of a loaded rod), ``"frame"`` (a spinning rod:
+    the frequencies are seen from the spinning frame) and ``"remark"`` (a steady rotation that turned
+    the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`VarintError`.
+    """
+    if count < 1:
+        raise VarintError(f"modes: -n/--count must be >= 1, got {count}")
+    from .linear import modes
+    from ..model.model import build_model
+    from .rod_modes import rod_modes
+
+    source = source if source is not None else (scene.path or "scene")
+    model = build_model(scene)
+    d = {"about": about}
+    if model.coupled and model.tube.open_ends:
+        # docs/theory.md §13.6: a tube conveying fluid, linearised about its steady flow (straight, or the steady
+        # state under gravity with --about static)
+        from .flowing_modes import first_order_modes, flowing_linearization
+
+        lin = flowing_linearization(model, about)
+        d["modes"] = first_order_modes(lin["K"], lin["C"], lin["M"], count)
+        par = lin["parameters"]
+        d["flow"] = {k: float(par[k]) for k in ("U", "u", "beta", "gamma")}
+        if about == "initial" and lin["unbalanced"] > 1e-9:
+            why = ", ".join(_loads(model.rod)) or "the steady flow's centrifugal load on a curved tube"
+            d["note"] = (f"{source} is not in equilibrium in its initial state ({why}; unbalanced force "
+                         f"{lin['unbalanced']:.2g} of a unit strain's): these modes are about the initial state, "
+                         "not the steady state; use --about static for that")
+        return d
+    if model.coupled:
+        # docs/theory.md §10.10: the coupled tube's kinetic metric and potential Hessian about its initial state
+        from .coupled_modes import coupled_linearization, coupled_static, modes_of_linearization
+
+        configuration = coupled_static(model)[0] if about == "static" else None
+        lin = coupled_linearization(model, configuration)
+        d["modes"] = modes_of_linearization(model, lin, count)
+        loads = _loads(model.rod)
+        if about == "initial" and lin["unbalanced"] > 1e-9:
+            why = ", ".join(loads) if loads else "e.g. the fluid's pressure against environment.external_pressure"
+            d["note"] = (f"{source} is not in equilibrium in its initial state ({why}; unbalanced force "
+                         f"{lin['unbalanced']:.2g} of a unit strain's): these modes are about the initial state, "
+                         "not a loaded equilibrium")
+        return d
+    if model.rod is not None:
+        spin = model.rod.spin  # rod.initial.angular_velocity
+        if about == "static":
+            from ..model.statics import static_equilibrium
+
+            # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
+            Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
+            res = rod_modes(model, count=count, Lam=Lam, r=r, lam=info.get("element_forces"))
+            if _turned(info):
+                d["remark"] = f"the steady rotation found has {_turned(info)}"
+        else:
+            res = rod_modes(model, count=count)
+            loads = _loads(model.rod)
+            if loads:
+                d["note"] = (f"{source} has loads ({', '.join(loads)}): these modes are about the initial, unloaded "
+                             "state, not the loaded equilibrium" + ("" if model.rod.free else "; use --about static for that"))
+        if np.any(spin):
+            d["frame"] = {"angular_velocity": [float(x) for x in spin],
+                          "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
+    else:
+        if about == "static":
+            raise VarintError(f"{source}: --about static is available for [rod] scenes only")
+        res = modes(model, count=count)
+    d["modes"] = res
+    return d
+
+
+def strongest(res):
+    """The summary of a modes list that a sweep tabulates.
+
+    ``growth_rate``: the largest growth rate (0 when no mode grows; negative when every mode decays, as a
+    tube conveying fluid below its flutter threshold); ``lowest_frequency``: the lowest
+    frequency of the modes that do not grow, rigid-body motions (frequency 0, or below 1e-6 of the
+    highest listed) left out (NaN when there is none); ``frequency``: the frequency of the fastest
+    growing mode, or, when no mode grows, ``lowest_frequency``.
+    """
+    nan = float("nan")
+    grow = max((m["growth_rate"] for m in res), default=nan)
+    top = max((m["frequency"] for m in res), default=0.0)
+    elastic = [m["frequency"] for m in res if m["growth_rate"] <= 0.0 and m["frequency"] > 1e-6 * top]
+    lowest = float(min(elastic)) if elastic else nan
+    if grow > 0.0:
+        freq = next(m["frequency"] for m in res if m["growth_rate"] == grow)
+    else:
+        freq = lowest
+    return {"growth_rate": float(grow), "frequency": float(freq), "lowest_frequency": lowest}

@@ -1,0 +1,366 @@
+"""Geometry of the coupled tube (docs/theory.md §10.2, §10.3): element-local kernels, exact derivatives.
+
+Two pieces of the coupled tube's discrete Lagrangian that do not depend on how the model is assembled:
+
+* **Labels on the moving centreline** (§10.2): X(s; r) = sum_i N_i(t) r_i, the Catmull–Rom
+  (cubic Hermite) interpolant of the nodal positions, with nodal tangents (r_{j+1} - r_{j-1})/(2 ds)
+  and quadratic-extrapolation ghosts at closed ends.  Its weights sum to one (so X moves with any
+  rigid motion of the nodes), it passes through the nodes and X' is continuous at them.
+  :func:`centreline_weights` returns, for labels s, the four nodes each reads and the weights
+  N_i, N_i' = dN_i/ds and N_i'' = d^2 N_i/ds^2; X, X', X'' and every derivative of a term in X with
+  respect to r follow from them (X is linear in r).
+
+* **Parcel volumes with a stretch** (§10.3): V_k = int_{s_k}^{s_{k+1}} pi R(s)^2 gamma(s) ds with R
+  and the nodal stretch gamma (gamma_j = mean |Gamma| of the elements at node j) both linear between
+  nodes.  On an element with hat functions phi_0 = 1 - t, phi_1 = t the integrand is the cubic form
+  sum_{i,j,l} R_i R_j gamma_l phi_i phi_j phi_l, so
+
+      G_e(t) = ds pi sum_{i,j,l in {0,1}} R_i R_j gamma_l M_{i+j+l}(t),
+      M_q(t) = int_0^t (1 - tau)^(3-q) tau^q dtau,
+
+  and V_k = sum of G_e(1) over the elements a parcel covers plus G_e1(t1) - G_e0(t0).  Every first
+  and second derivative in (s, R, gamma) is then a contraction of the same moments: exact, with no
+  case analysis.  With gamma = 1 the volumes are those of :mod:`varint.lattice.parcels` (tested equal).
+
+The one-model rewrite (docs/theory.md §10) assembles these into the coupled terms; until then they are
+tested against independent references (quadrature, finite differences) in tests/test_coupled_geometry.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .parcels import label_problem
+
+EPS = np.finfo(float).eps
+
+__all__ = ["centreline_weights", "centreline", "centreline_and_weights", "stretched_volumes", "stretched_volume_derivatives",
+           "nodal_stretch"]
+
+
+# ---------------------------------------------------------------------------
+# Catmull–Rom centreline
+
+
+def centreline_weights(s, n_nodes, ds, periodic=False):
+    """Nodes and weights of X(s) = sum_i N_i r_i for labels ``s``.
+
+    Returns ``(nodes, N, dN, d2N)``, each of shape (len(s), 4) (``nodes`` int): node indices (mod
+    ``n_nodes`` for a periodic tube, whose period shift the caller adds), the weights, and their first
+    and second derivatives with respect to s.  Closed ends fold the ghost nodes r_{-1} = 3r_0 - 3r_1 + r_2
+    and r_{N+1} = 3r_N - 3r_{N-1} + r_{N-2} into the real ones, so a node may appear twice in a row with
+    the weights split between the entries (sums over entries are what count).
+    """
+    s = np.ascontiguousarray(s, dtype=np.float64)
+    bad = ~np.isfinite(s)
+    if not periodic:
+        L = (n_nodes - 1) * ds
+        bad |= (s < -8 * EPS * L) | (s > L * (1 + 8 * EPS))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"label {k} (s = {s[k]:.6g} m) is not on the centreline")
+    if not periodic and n_nodes < 3:
+        raise ValueError("a closed centreline needs at least 3 nodes (quadratic end extrapolation)")
+    nodes = np.empty((len(s), 4), np.int64)
+    N = np.empty((len(s), 4))
+    dN = np.empty((len(s), 4))
+    d2N = np.empty((len(s), 4))
+    _k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N)
+    return nodes, N, dN, d2N
+
+
+def centreline(s, r, ds, periodic=False, period=None):
+    """X(s), X'(s), X''(s) for labels ``s`` on nodal positions ``r`` (n_nodes, 3).
+
+    ``period``: the shift vector d with r_{j+N} = r_j + d for a periodic tube (default L e_1).
+    """
+    return centreline_and_weights(s, r, ds, periodic, period)[3:]
+
+
+def centreline_and_weights(s, r, ds, periodic=False, period=None):
+    """``(nodes, N, dN, X, X', X'')``: :func:`centreline_weights` and the centreline they give."""
+    r = np.asarray(r, dtype=np.float64)
+    nodes, N, dN, d2N = centreline_weights(s, len(r), ds, periodic)
+    pts = r[nodes]
+    if periodic:
+        d = np.array([len(r) * ds, 0.0, 0.0]) if period is None else np.asarray(period, dtype=np.float64)
+        e = np.floor(np.asarray(s) / ds).astype(np.int64)
+        unwrapped = e[:, None] + np.arange(-1, 3)[None, :]
+        pts = pts + np.floor_divide(unwrapped, len(r))[:, :, None] * d
+    return (nodes, N, dN, np.einsum("ki,kid->kd", N, pts), np.einsum("ki,kid->kd", dN, pts),
+            np.einsum("ki,kid->kd", d2N, pts))
+
+
+@njit(cache=True)
+def _cr_basis(t, out, dout, d2out):
+    """Catmull–Rom weights of nodes e-1, e, e+1, e+2 at local coordinate t, and their t-derivatives."""
+    out[0] = 0.5 * (-t * t * t + 2.0 * t * t - t)
+    out[1] = 0.5 * (3.0 * t * t * t - 5.0 * t * t + 2.0)
+    out[2] = 0.5 * (-3.0 * t * t * t + 4.0 * t * t + t)
+    out[3] = 0.5 * (t * t * t - t * t)
+    dout[0] = 0.5 * (-3.0 * t * t + 4.0 * t - 1.0)
+    dout[1] = 0.5 * (9.0 * t * t - 10.0 * t)
+    dout[2] = 0.5 * (-9.0 * t * t + 8.0 * t + 1.0)
+    dout[3] = 0.5 * (3.0 * t * t - 2.0 * t)
+    d2out[0] = 0.5 * (-6.0 * t + 4.0)
+    d2out[1] = 0.5 * (18.0 * t - 10.0)
+    d2out[2] = 0.5 * (-18.0 * t + 8.0)
+    d2out[3] = 0.5 * (6.0 * t - 2.0)
+
+
+@njit(cache=True)
+def _k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
+    b = np.empty(4)
+    db = np.empty(4)
+    d2b = np.empty(4)
+    n_el = n_nodes if periodic else n_nodes - 1
+    for k in range(s.shape[0]):
+        e = int(math.floor(s[k] / ds))
+        if not periodic:
+            e = min(max(e, 0), n_el - 1)  # the closed end s = L belongs to the last element
+        t = s[k] / ds - e
+        _cr_basis(t, b, db, d2b)
+        for i in range(4):
+            N[k, i] = b[i]
+            dN[k, i] = db[i] / ds
+            d2N[k, i] = d2b[i] / (ds * ds)
+            j = e - 1 + i
+            nodes[k, i] = j % n_nodes if periodic else j
+        if not periodic:
+            # ghosts: r_{-1} = 3 r_0 - 3 r_1 + r_2 and r_{N+1} = 3 r_N - 3 r_{N-1} + r_{N-2}
+            last = n_nodes - 1
+            if nodes[k, 0] < 0:
+                _fold(k, 0, (0, 1, 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
+            if nodes[k, 3] > last:
+                _fold(k, 3, (last, last - 1, last - 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
+
+
+@njit(cache=True)
+def _fold(k, slot, targets, coefs, nodes, N, dN, d2N):
+    """Replace the ghost in ``slot`` by coefs . (r of targets): the first two targets are already in
+    the stencil (their entries gain coef * weight), the slot itself takes the third."""
+    w, dw, d2w = N[k, slot], dN[k, slot], d2N[k, slot]
+    nodes[k, slot] = targets[2]
+    N[k, slot] = coefs[2] * w
+    dN[k, slot] = coefs[2] * dw
+    d2N[k, slot] = coefs[2] * d2w
+    for m in range(2):
+        for i in range(4):
+            if i != slot and nodes[k, i] == targets[m]:
+                N[k, i] += coefs[m] * w
+                dN[k, i] += coefs[m] * dw
+                d2N[k, i] += coefs[m] * d2w
+                break
+
+
+# ---------------------------------------------------------------------------
+# parcel volumes with a nodal stretch
+
+
+def nodal_stretch(stretch_elements, periodic=False):
+    """gamma_j from element stretches |Gamma_e|: the mean of the elements at node j (§10.3)."""
+    g = np.asarray(stretch_elements, dtype=np.float64)
+    if periodic:
+        return 0.5 * (g + np.roll(g, 1))
+    out = np.empty(len(g) + 1)
+    out[0], out[-1] = g[0], g[-1]
+    out[1:-1] = 0.5 * (g[:-1] + g[1:])
+    return out
+
+
+def _prepare(s, R, gamma, ds, periodic):
+    s = np.ascontiguousarray(s, dtype=np.float64)
+    R = np.ascontiguousarray(R, dtype=np.float64)
+    gamma = np.ascontiguousarray(gamma, dtype=np.float64)
+    if R.shape != gamma.shape:
+        raise ValueError(f"R and gamma need the same shape, got {R.shape} and {gamma.shape}")
+    problem = label_problem(s, len(R), ds, periodic, tube=False)
+    if problem is not None:
+        raise ValueError(problem[1])
+    return s, R, gamma
+
+
+def stretched_volumes(s, R, gamma, ds, periodic=False):
+    """V_k = int pi R^2 gamma ds over each parcel [s_k, s_{k+1}], exactly."""
+    s, R, gamma = _prepare(s, R, gamma, ds, periodic)
+    V = np.empty(len(s) - 1)
+    _k_stretched_volumes(s, R, gamma, ds, periodic, V)
+    return V
+
+
+def stretched_volume_derivatives(s, R, gamma, ds, periodic=False):
+    """Exact derivatives of every V_k in its local unknowns.
+
+    Returns ``(V, index, grad, hess)``: ``index`` (M, n_loc) lists the configuration indices of
+    parcel k's local unknowns — label k, label k+1, then the radii and then the stretches of the nodes
+    e0..e0+n-1 it touches, as ``("s", k)``-free integers: labels 0..M, radii M+1+j, stretches
+    M+1+nR+j (-1 pads unused slots); ``grad`` (M, n_loc) and ``hess`` (M, n_loc, n_loc) the first and
+    second derivatives in that order.  Every parcel has the same n_loc = 2 + 2 (span + 2), span the
+    largest number of elements a parcel reaches into.
+    """
+    s, R, gamma = _prepare(s, R, gamma, ds, periodic)
+    nR = len(R)
+    e0 = np.floor(s[:-1] / ds).astype(np.int64)
+    e1 = np.floor(s[1:] / ds).astype(np.int64)
+    if not periodic:
+        e0 = np.clip(e0, 0, nR - 2)
+        e1 = np.clip(e1, 0, nR - 2)
+    span = int(np.max(e1 - e0)) + 1 if len(s) > 1 else 1
+    n_nodes = span + 1
+    n_loc = 2 + 2 * n_nodes
+    M = len(s) - 1
+    V = np.empty(M)
+    index = np.full((M, n_loc), -1, np.int64)
+    grad = np.zeros((M, n_loc))
+    hess = np.zeros((M, n_loc, n_loc))
+    _k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess)
+    return V, index, grad, hess
+
+
+@njit(cache=True)
+def _moments(t, M):
+    """M[q] = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, and their t-derivatives are the integrand."""
+    u = 1.0 - t
+    t2 = t * t
+    t3 = t2 * t
+    t4 = t3 * t
+    M[0] = 0.25 * (1.0 - u * u * u * u)
+    M[1] = 0.5 * t2 - 2.0 * t3 / 3.0 + 0.25 * t4
+    M[2] = t3 / 3.0 - 0.25 * t4
+    M[3] = 0.25 * t4
+
+
+@njit(cache=True)
+def _element_G(Rl, gl, t, ds):
+    """G_e(t) for the element's radii Rl[0:2] and stretches gl[0:2]."""
+    Mq = np.empty(4)
+    _moments(t, Mq)
+    G = 0.0
+    for i in range(2):
+        for j in range(2):
+            for l in range(2):
+                G += Rl[i] * Rl[j] * gl[l] * Mq[i + j + l]
+    return ds * math.pi * G
+
+
+@njit(cache=True)
+def _locate_el(x, ds, nR, periodic):
+    if periodic:
+        e = int(math.floor(x / ds))
+    else:
+        e = min(max(int(math.floor(x / ds)), 0), nR - 2)
+    return e, x / ds - e
+
+
+@njit(cache=True)
+def _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl):
+    """Load element e's nodal radii and stretches into Rl, gl; return the local interval [lo, hi] of
+    the parcel (e0, t0)-(e1, t1) on it."""
+    nR = R.shape[0]
+    for i in range(2):
+        node = (e + i) % nR if periodic else e + i
+        Rl[i] = R[node]
+        gl[i] = gamma[node]
+    return (t0 if e == e0 else 0.0), (t1 if e == e1 else 1.0)
+
+
+@njit(cache=True)
+def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
+    nR = R.shape[0]
+    Rl = np.empty(2)
+    gl = np.empty(2)
+    for k in range(s.shape[0] - 1):
+        e0, t0 = _locate_el(s[k], ds, nR, periodic)
+        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
+        v = 0.0
+        for e in range(e0, e1 + 1):
+            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
+            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
+        V[k] = v
+
+
+@njit(cache=True)
+def _add_element(Rl, gl, t, sign, ds, slot, n_nodes, g, H):
+    """Add sign * (gradient, Hessian) of G_e(t) in (R, gamma) of the element's two nodes.
+
+    Local layout: g[2 + m] radius of local node m, g[2 + n_nodes + m] its stretch; ``slot`` is the
+    element's first local node.
+    """
+    Mq = np.empty(4)
+    _moments(t, Mq)
+    c = sign * ds * math.pi
+    for i in range(2):
+        iR = 2 + slot + i
+        ig = 2 + n_nodes + slot + i
+        dR = 0.0
+        dg = 0.0
+        for j in range(2):
+            for l in range(2):
+                dR += 2.0 * Rl[j] * gl[l] * Mq[i + j + l]
+                dg += Rl[j] * Rl[l] * Mq[j + l + i]
+        g[iR] += c * dR
+        g[ig] += c * dg
+        for j in range(2):
+            jR = 2 + slot + j
+            jg = 2 + n_nodes + slot + j
+            hRR = 0.0
+            hRg = 0.0
+            for l in range(2):
+                hRR += 2.0 * gl[l] * Mq[i + j + l]
+                hRg += 2.0 * Rl[l] * Mq[i + l + j]
+            H[iR, jR] += c * hRR
+            H[iR, jg] += c * hRg
+            H[jg, iR] += c * hRg
+
+
+@njit(cache=True)
+def _add_end(Rl, gl, t, sign, ds, slot, n_nodes, label, g, H):
+    """The end-label rows: d/ds of G_e(t(s)) is pi R(t)^2 gamma(t) (sign -1 at s_k, +1 at s_{k+1})."""
+    Rt = Rl[0] * (1.0 - t) + Rl[1] * t
+    gt = gl[0] * (1.0 - t) + gl[1] * t
+    phi0 = 1.0 - t
+    phi1 = t
+    c = sign * math.pi
+    g[label] += c * Rt * Rt * gt
+    H[label, label] += c * (2.0 * Rt * (Rl[1] - Rl[0]) * gt + Rt * Rt * (gl[1] - gl[0])) / ds
+    for i, phi in ((0, phi0), (1, phi1)):
+        iR = 2 + slot + i
+        ig = 2 + n_nodes + slot + i
+        H[label, iR] += c * 2.0 * Rt * gt * phi
+        H[iR, label] += c * 2.0 * Rt * gt * phi
+        H[label, ig] += c * Rt * Rt * phi
+        H[ig, label] += c * Rt * Rt * phi
+
+
+@njit(cache=True)
+def _k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess):
+    nR = R.shape[0]
+    M = s.shape[0] - 1
+    Rl = np.empty(2)
+    gl = np.empty(2)
+    for k in range(M):
+        e0, t0 = _locate_el(s[k], ds, nR, periodic)
+        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
+        g = grad[k]
+        H = hess[k]
+        index[k, 0] = k
+        index[k, 1] = k + 1
+        for m in range(e1 - e0 + 2):
+            node = (e0 + m) % nR if periodic else e0 + m
+            index[k, 2 + m] = M + 1 + node
+            index[k, 2 + n_nodes + m] = M + 1 + nR + node
+        v = 0.0
+        for e in range(e0, e1 + 1):
+            slot = e - e0
+            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
+            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
+            _add_element(Rl, gl, hi, 1.0, ds, slot, n_nodes, g, H)
+            _add_element(Rl, gl, lo, -1.0, ds, slot, n_nodes, g, H)
+            if e == e1:
+                _add_end(Rl, gl, t1, 1.0, ds, slot, n_nodes, 1, g, H)
+            if e == e0:
+                _add_end(Rl, gl, t0, -1.0, ds, slot, n_nodes, 0, g, H)
+        V[k] = v

@@ -1,0 +1,1035 @@
+"""The geometrically exact rod on the SE(3) lattice: a Cayley-map Lie-group variational integrator.
+
+Lattice (docs/theory.md §9): nodes j = 0..N carry positions r_j and frames Lambda_j in SO(3).  A time step
+n -> n+1 is parametrised by xi_j = cay^-1(Lambda_j^n^T Lambda_j^{n+1}) (= h omega_j) and r_j^{n+1}.
+
+Discrete Lagrangian of a step (docs/theory.md §9), a sum over elements e = (j, j+1):
+
+    L_d = sum_e h ds mu_e [ (k_j + k_{j+1})/2 - W_e + rhoA g.(rm_j + rm_{j+1})/2 ] + h F.rm_N
+    k_j  = 1/2 rhoA |r_j^{n+1} - r_j^n|^2 / h^2 + 1/2 xi_j^T I xi_j / h^2          (kinetic density)
+    W_e  = 1/2 Om_e^T J Om_e + 1/2 (Ga_e - chi)^T K (Ga_e - chi)                   (elastic density)
+    Om_e = (Omega_e^n + Omega_e^{n+1}) / 2,  Ga_e = (Gamma_e^n + Gamma_e^{n+1}) / 2    (strain midpoint)
+    Omega_e = cay^-1(Lambda_j^T Lambda_{j+1}) / ds,  Gamma_e = 1/2 (Lambda_j + Lambda_{j+1})^T (r_{j+1} - r_j) / ds
+    rm_j = (r_j^n + r_j^{n+1}) / 2,   mu_e = |Ga_e| (the paper's measure) or 1 (reference-length measure)
+
+Its derivatives with respect to the Lie-group variations Lambda -> Lambda cay(eps sigma),
+r -> r + eps dr are element-local and exact: ``_k_element`` returns an element's L_d and its analytic
+gradient at both levels (dcay^-1 formulas, docs/theory.md §9); the step solves, in position-momentum form,
+
+    pi_n + D1 L_d(q_n, q_{n+1}) + f^-_n = 0,       pi_{n+1} = D2 L_d(q_n, q_{n+1}) + f^+_n,
+
+where pi = (p, Pi) are the linear (spatial) and angular (body) momenta and f^± = (h/2)(0, Lambda^T T)
+the tip torque by Lagrange-d'Alembert.  Newton's Jacobian is assembled from element blocks, each the
+complex step of the analytic element gradient (``_k_step_blocks``: exact to round-off, block
+tridiagonal in nodes); statics and modes use the same for the Hessian of the potential
+(``_k_static_blocks``).  The complex step of the whole L_d (``_k_pieces``) is kept as the tested reference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+
+from .forces import Declaration, TipTorque, derive_invariants
+from ..scene.initial import shape_profile
+from ..lattice.lie import cay, cay_inv
+
+__all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
+
+EPS_CS = 1e-30  # complex-step size: no subtractive cancellation, any tiny value works
+CHI = np.array([1.0, 0.0, 0.0])
+#: refresh the Jacobian when a chord iteration contracts by less than this.  0.5 in 0.1, when a
+#: finite-difference Jacobian cost about 40 residuals; the exact one costs 7-15 (docs/performance.md,
+#: "Exact rod Jacobian"), and 0.15 takes the 100-element tumbling rod from 15 to 11.5 iterations per
+#: step, 1.8 to 1.5 ms.  (Iterating the chord to tol 1e-14 was tried: below the round-off floor of a
+#: stiff rod's step, ~2e-13 at cond(J) = 5e5, it stalled a 10^6-step run at step 61536.)
+RATE_REFRESH_ROD = 0.15
+#: iterations past newton_tol down to the round-off floor: a step's momentum error is its final
+#: residual, and over 10^4 tumbling steps tolerance-sized residuals added up to 3e-12 of the angular
+#: momentum (1.7e-14 when polished; docs/validation.md)
+POLISH_ROD = 10
+#: largest accepted rotation per step, |xi| = 2 tan(theta/2) at theta = 90 degrees
+XI_MAX = 2.0
+
+
+def reorthonormalize(Lam):
+    """One Newton step of the polar projection onto SO(3): Lambda (3 I - Lambda^T Lambda) / 2.
+
+    Products of Cayley factors leave SO(3) by a random walk of round-off (3e-13 after 10^6 steps);
+    the discrete momentum map assumes Lambda^-1 = Lambda^T, so that defect leaks into the angular
+    momentum.  The correction is second order in the defect, i.e. it restores orthogonality to
+    round-off and moves Lambda by a round-off amount.
+    """
+    return 0.5 * Lam @ (3.0 * np.eye(3) - np.swapaxes(Lam, -1, -2) @ Lam)
+
+
+@dataclass(frozen=True)
+class RodSection:
+    """Per-unit-length section properties (SI)."""
+
+    rhoA: float  #: mass per length [kg/m]
+    rhoI: float  #: rotary inertia about a bending axis per length [kg m]
+    EI: float  #: bending stiffness [N m^2]
+    GJ: float  #: torsional stiffness [N m^2]
+    EA: float  #: axial stiffness [N]
+    kGA: float  #: shear stiffness [N]
+
+    @property
+    def inertia(self):
+        """Body inertia per length diag(polar, bending, bending); the rod axis is E1."""
+        return np.array([2.0 * self.rhoI, self.rhoI, self.rhoI])
+
+    @property
+    def J(self):
+        return np.array([self.GJ, self.EI, self.EI])
+
+    @property
+    def K(self):
+        return np.array([self.EA, self.kGA, self.kGA])
+
+
+def rod_section(rod, inner_radius):
+    """Section of a scene's ``[rod]``: stiffness form, or an annulus of the given thickness."""
+    if rod.bending_stiffness is not None:
+        # an inextensible, unshearable rod may leave its axial and shear stiffness out (it has no such energy)
+        return RodSection(rod.mass_per_length, rod.rotary_inertia, rod.bending_stiffness, rod.torsional_stiffness,
+                          rod.axial_stiffness if rod.axial_stiffness is not None else math.inf,
+                          rod.shear_stiffness if rod.shear_stiffness is not None else math.inf)
+    ri = inner_radius
+    ro = ri + rod.thickness
+    A = math.pi * (ro ** 2 - ri ** 2)
+    I = math.pi * (ro ** 4 - ri ** 4) / 4.0
+    E, rho = rod.youngs_modulus, rod.density
+    G = rod.shear_modulus if rod.shear_modulus is not None else E / 3.0
+    return RodSection(rho * A, rho * I, E * I, G * 2.0 * I, E * A, rod.shear_coefficient * G * A)
+
+
+# ---------------------------------------------------------------------------
+# the discrete Lagrangian, complex-step ready (leading batch axes allowed on every argument)
+
+
+def _T(A):
+    return np.swapaxes(A, -1, -2)
+
+
+def _mv(A, v):
+    return np.einsum("...ij,...j->...i", A, v)
+
+
+class RodPart:
+    """Unknowns, section, loads and element kernels of a scene's ``[rod]``: the r and Lambda blocks of the model."""
+
+    def __init__(self, scene):
+        rod = scene.rod
+        self.scene = scene
+        self.L = scene.tube.length
+        self.N = scene.tube.nodes - 1
+        self.ds = self.L / self.N
+        self.dim = rod.dimension
+        self.section = rod_section(rod, scene.tube.radius)
+        self.paper_measure = rod.measure == "paper"
+        self.g = np.array(scene.environment.gravity, dtype=float)
+        load = rod.load or {}
+        self.force = np.array(load.get("force") or (0.0, 0.0, 0.0), dtype=float)
+        self.torque = np.array(load.get("torque") or (0.0, 0.0, 0.0), dtype=float)
+        #: non-conservative forces (discrete Lagrange-d'Alembert, varint.terms.forces)
+        self.forces = [TipTorque(self.torque)] if np.any(self.torque) else []
+        # active per-node directions: (dr_x, dr_y, dr_z, sigma_x, sigma_y, sigma_z)
+        dirs = np.array([True] * 6) if self.dim == 3 else np.array([True, True, False, False, False, True])
+        mask = np.tile(dirs, (self.N + 1, 1))
+        for node, kind in ((0, rod.ends.s0), (self.N, rod.ends.sL)):
+            if kind in ("clamped", "pinned"):
+                mask[node, :3] = False
+            if kind == "clamped":
+                mask[node, 3:] = False
+        #: periodic ends (docs/theory.md §9b): node N is node 0's image, r_N = r_0 + d (d = L E_1, the period),
+        #: Lambda_N = Lambda_0; it holds no unknowns of its own, its rows fold into node 0's
+        self.periodic = rod.ends.s0 == "periodic"
+        self.period = np.array([self.L, 0.0, 0.0])
+        if self.periodic:
+            mask[self.N, :] = False
+        self.mask = mask
+        #: both ends free (or periodic): the rod can translate and turn as a whole (the mask cannot say it for the
+        #: planar model, whose out-of-plane directions are masked everywhere)
+        self.free = (rod.ends.s0 == "free" and rod.ends.sL == "free") or self.periodic
+        self.nz = int(mask.sum())
+        self.layout = {"r": int(mask[:, :3].sum()), "Lambda": int(mask[:, 3:].sum())}
+        #: the inextensible, unshearable rod (docs/theory.md §9a, varint.terms.rod_constraint): Gamma = chi imposed by
+        #: multipliers (level unknowns of the step's first level, SHAKE; ``ncomp`` per element) instead of the
+        #: stretch-shear energy
+        self.constrained = rod.constraint == "inextensible_unshearable"
+        self.ncomp = 3 if self.dim == 3 else 2
+        self.nlam = self.N * self.ncomp if self.constrained else 0
+        if self.constrained:
+            held = [e for e in (rod.ends.s0, rod.ends.sL) if e in ("clamped", "pinned")]
+            if len(held) == 2 and not any((rod.initial or {}).get("curvature") or ()):
+                # sum_e ds dGamma_1,e = (dr_N - dr_0).t = 0: the tension of a taut inextensible rod between two
+                # held ends is indeterminate (one multiplier is free, the Newton matrix singular)
+                raise ValueError("rod.constraint: a straight inextensible rod held at both ends has an indeterminate "
+                                 "tension; give rod.initial.curvature, free an end, or use constraint = 'none'")
+            if (rod.initial or {}).get("shape") == "steady_rotation":
+                raise ValueError("rod.initial.shape: 'steady_rotation' is not available with rod.constraint = "
+                                 "'inextensible_unshearable' in this version (its statics need the constraint)")
+        self.w = np.full(self.N + 1, self.ds)
+        self.w[0] = self.w[-1] = 0.5 * self.ds
+        if self.periodic:  # node 0 carries both halves of its lumped mass, its image none
+            self.w[0], self.w[-1] = self.ds, 0.0
+        #: lumped node masses rho A w_j and section inertias I w_j (the kinetic metric, reference measure)
+        self.node_mass = self.section.rhoA * self.w
+        self.node_inertia = self.section.inertia[None, :] * self.w[:, None]
+        self.perturbations = rod.perturbation or []
+        self._initial(rod.initial or {})
+        #: the steady rotation's Newton report when rod.initial.shape = "steady_rotation" (the model solves it:
+        #: varint.model.model.statics.static_equilibrium), else None
+        self.steady_rotation = None
+
+    # -- initial state -------------------------------------------------------
+
+    def _initial(self, ini):
+        N, ds = self.N, self.ds
+        kappa = np.array(ini.get("curvature") or (0.0, 0.0, 0.0), dtype=float)
+        Lam = np.empty((N + 1, 3, 3))
+        r = np.zeros((N + 1, 3))
+        Lam[0] = np.eye(3)
+        step = cay(ds * kappa)
+        for j in range(N):
+            Lam[j + 1] = Lam[j] @ step
+            # strain-free chord: 1/2 (L_j + L_{j+1})^T dr / ds = chi
+            r[j + 1] = r[j] + ds * np.linalg.solve(0.5 * (Lam[j] + Lam[j + 1]).T, CHI)
+        self.velocity = np.array(ini.get("velocity") or (0.0, 0.0, 0.0), dtype=float)
+        self.spin = np.array(ini.get("angular_velocity") or (0.0, 0.0, 0.0), dtype=float)
+        #: rod.perturbation[]: node velocities added to the rigid motion, profiles along the reference arc length
+        self.velocity_perturbation = np.zeros((N + 1, 3))
+        s_nodes = ds * np.arange(N + 1)
+        for p in self.perturbations:
+            d = np.asarray(p.direction, dtype=float)
+            self.velocity_perturbation += shape_profile(p, s_nodes)[:, None] * (d / np.linalg.norm(d))[None, :]
+        self.velocity_perturbation *= self.mask[:, :3]  # a held node does not move
+        self.set_configuration(Lam, r)
+
+    @property
+    def K_energy(self):
+        """The stretch-shear stiffness of the energy: the section's, or zero when the constraint replaces it."""
+        return np.zeros(3) if self.constrained else self.section.K
+
+    def centre_of_mass(self, r):
+        return (self.node_mass[:, None] * r).sum(0) / self.node_mass.sum()
+
+    def set_configuration(self, Lam, r, rest=False):
+        """Start from (Lam, r), moving rigidly with rod.initial velocity and angular velocity about its
+        centre of mass (e.g. the steady rotation found by :func:`static_equilibrium` with ``spin``), or
+        at rest (``rest=True``: a static equilibrium)."""
+        v = self.velocity + np.cross(self.spin, r - self.centre_of_mass(r)) + self.velocity_perturbation
+        omega = np.einsum("nji,j->ni", Lam, self.spin)  # body angular velocity Lambda^T Omega
+        if rest:
+            v, omega = np.zeros_like(v), np.zeros_like(omega)
+        self.Lam0, self.r0 = Lam, r
+        self.v0, self.omega0 = v, omega
+        self.p0 = self.node_mass[:, None] * v
+        self.Pi0 = self.node_inertia * omega
+
+    # -- discrete Lagrangian pieces ---------------------------------------------
+
+    def strains(self, Lam, r):
+        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds."""
+        La, Lb = Lam[..., :-1, :, :], Lam[..., 1:, :, :]
+        Om = cay_inv(_T(La) @ Lb) / self.ds
+        Ga = _mv(_T(0.5 * (La + Lb)), r[..., 1:, :] - r[..., :-1, :]) / self.ds
+        return Om, Ga
+
+    def lagrangian_pieces(self, h, Lam_n, r_n, xi, r_1, sig=None, dr=None, level=0):
+        """Per-element discrete Lagrangian (B, N) and per-node extra pieces (B, N+1).
+
+        ``sig``, ``dr`` (B, N+1, 3) perturb the level ``level`` (0: n, 1: n+1) configuration:
+        Lambda -> Lambda cay(sig), r -> r + dr.  Complex values give complex-step derivatives.
+        The potential is evaluated at the *strain midpoint* (eps_n + eps_{n+1})/2: exact for rigid
+        motions of any size, the implicit midpoint rule on linear problems (docs/theory.md §9).
+        """
+        Lam_1 = Lam_n @ cay(xi)
+        if sig is not None:
+            C = cay(sig)
+            if level == 0:
+                Lam_n = Lam_n @ C
+                xi = cay_inv(_T(C) @ cay(xi))
+                r_n = r_n + dr
+            else:
+                Lam_1 = Lam_1 @ C
+                xi = cay_inv(cay(xi) @ C)
+                r_1 = r_1 + dr
+        sec, ds = self.section, self.ds
+        vel = (r_1 - r_n) / h
+        k = 0.5 * sec.rhoA * np.sum(vel * vel, axis=-1) + 0.5 * np.sum(sec.inertia * xi * xi, axis=-1) / h ** 2
+        Om0, Ga0 = self.strains(Lam_n, r_n)
+        Om1, Ga1 = self.strains(Lam_1, r_1)
+        Om, Ga = 0.5 * (Om0 + Om1), 0.5 * (Ga0 + Ga1)
+        dG = Ga - CHI
+        W = 0.5 * np.sum(sec.J * Om * Om, axis=-1) + 0.5 * np.sum(self.K_energy * dG * dG, axis=-1)
+        mu = np.sqrt(np.sum(Ga * Ga, axis=-1)) if self.paper_measure else 1.0
+        rm = 0.5 * (r_n + r_1)
+        grav = sec.rhoA * np.sum(self.g * (rm[..., :-1, :] + rm[..., 1:, :]), axis=-1) * 0.5
+        elem = h * ds * mu * (0.5 * (k[..., :-1] + k[..., 1:]) - W + grav)
+        node = np.zeros(rm.shape[:-1], dtype=elem.dtype)
+        node[..., -1] = h * np.sum(self.force * rm[..., -1, :], axis=-1)
+        return elem, node
+
+    def pieces_fast(self, h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor=1.0):
+        """:meth:`lagrangian_pieces` through the numba kernel ``_k_pieces`` (tested equal)."""
+        sec = self.section
+        c = np.complex128
+        B = sig.shape[0]
+        elem = np.empty((B, self.N), dtype=c)
+        node = np.empty((B, self.N + 1), dtype=c)
+        consts = getattr(self, "_cs_consts", None)
+        if consts is None or consts[0] != load_factor:  # the kernel's complex constants, built once per load
+            consts = (load_factor, sec.inertia.astype(c), sec.J.astype(c), self.K_energy.astype(c),
+                      (load_factor * self.g).astype(c), (load_factor * self.force).astype(c))
+            self._cs_consts = consts
+        # the levels are real (only the perturbations sig, dr are complex): no conversion needed
+        f8 = np.float64
+        _k_pieces(float(h), self.ds, np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                  np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), np.ascontiguousarray(sig, dtype=c),
+                  np.ascontiguousarray(dr, dtype=c), level, sec.rhoA, *consts[1:], self.paper_measure, elem, node)
+        return elem, node
+
+    def node_index(self):
+        """(N+1, 6) index of each node's (dr, sigma) in the rod's unknowns, -1 where held; a periodic rod's
+        image node N takes node 0's (its rows and columns fold into node 0's)."""
+        idx = np.full((self.N + 1, 6), -1)
+        idx[self.mask] = np.arange(self.nz)
+        if self.periodic:
+            idx[self.N] = idx[0]
+        return idx
+
+    @property
+    def column_mask(self):
+        """The directions whose columns the element kernels compute: the mask, and a periodic rod's image node
+        as node 0 (its columns fold into node 0's)."""
+        if not self.periodic:
+            return self.mask
+        m = self.mask.copy()
+        m[self.N] = m[0]
+        return m
+
+    def fold(self, D):
+        """A periodic rod's (N+1, 6) derivative with the image node's rows added into node 0's (in place)."""
+        if self.periodic:
+            D[0] += D[self.N]
+            D[self.N] = 0.0
+        return D
+
+    def level_energy(self, Lam, r, p, Pi, origin=None):
+        """Energy H(q_n, pi_n) = kinetic from the discrete momenta + potential at the level (the monitor).
+
+        ``r`` may be relative to ``origin`` (the floating origin of a free rod): the potentials of
+        gravity and the tip force, linear in r, take the origin's part separately.
+        """
+        sec, ds = self.section, self.ds
+        Om, Ga = self.strains(Lam, r)
+        dG = Ga - CHI
+        mu = np.sqrt(np.sum(Ga * Ga, axis=-1)) if self.paper_measure else np.ones(self.N)
+        wmu = np.zeros(self.N + 1)  # nodal weights of the (possibly |Gamma|-weighted) lumped mass
+        wmu[:-1] += 0.5 * ds * mu
+        wmu[1:] += 0.5 * ds * mu
+        if self.periodic:  # the image node's half belongs to node 0 (its momenta are folded there)
+            wmu[0] += wmu[-1]
+            wmu[-1] = np.inf
+        kin = float(np.sum(np.sum(p * p, 1) / (sec.rhoA * wmu)) * 0.5
+                    + np.sum(np.sum(Pi * Pi / sec.inertia, 1) / wmu) * 0.5)
+        bend = float(np.sum(ds * mu * 0.5 * np.sum(sec.J * Om * Om, axis=-1)))
+        stretch = float(np.sum(ds * mu * 0.5 * np.sum(self.K_energy * dG * dG, axis=-1)))
+        grav = -float(np.sum(ds * mu * sec.rhoA * np.sum(self.g * (r[:-1] + r[1:]), axis=-1) * 0.5))
+        load = -float(np.dot(self.force, r[-1]))
+        if origin is not None and np.any(origin):
+            grav -= float(np.sum(ds * mu) * sec.rhoA * np.dot(self.g, origin))
+            load -= float(np.dot(self.force, origin))
+        return {"kinetic": kin, "bending_torsion": bend, "stretch_shear": stretch, "gravity": grav, "load": load}
+
+    def _cs_plan(self):
+        """Complex-step perturbations (built once): all even, then all odd nodes, one direction each.
+
+        Returns ``(sig, dr, colour, direction)``: batch b perturbs direction ``direction[b]`` (0-2:
+        dr, 3-5: sigma) of the nodes of parity ``colour[b]``.
+        """
+        if getattr(self, "_plan", None) is None:
+            N = self.N
+            dirs = [0, 1, 5] if self.dim == 2 else list(range(6))
+            colour = np.repeat([0, 1], len(dirs))
+            direction = np.tile(dirs, 2)
+            sig = np.zeros((len(colour), N + 1, 3), dtype=complex)
+            dr = np.zeros((len(colour), N + 1, 3), dtype=complex)
+            for b, (c, d) in enumerate(zip(colour, direction)):
+                if d < 3:
+                    dr[b, c::2, d] = 1j * EPS_CS
+                else:
+                    sig[b, c::2, d - 3] = 1j * EPS_CS
+            self._plan = (sig, dr, colour, direction)
+        return self._plan
+
+    def _consts(self, load_factor=1.0):
+        """Section and load arrays of the exact kernels (built once per load factor)."""
+        c = getattr(self, "_exact_consts", None)
+        if c is None or c[0] != load_factor:
+            sec = self.section
+            c = (load_factor, sec.rhoA, np.ascontiguousarray(sec.inertia, dtype=float), np.ascontiguousarray(sec.J, dtype=float),
+                 np.ascontiguousarray(self.K_energy, dtype=float), load_factor * self.g, load_factor * self.force)
+            self._exact_consts = c
+        return c
+
+    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2)):
+        """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
+        element gradients (``_k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
+        range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros)."""
+        _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
+        D1 = np.empty((self.N + 1, 6))
+        D2 = np.empty((self.N + 1, 6))
+        f8 = np.float64
+        try:
+            L = _k_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure,
+                            np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), levels[0], levels[1],
+                            D1, D2)
+        except ZeroDivisionError:
+            # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
+            # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
+            D1[:] = np.nan
+            D2[:] = np.nan
+            L = np.nan
+        # the kernel leaves a level it does not compute unwritten (scratch): return it as zeros, as documented
+        if levels[0] > 0:
+            D1[:] = 0.0
+        if levels[1] < 2:
+            D2[:] = 0.0
+        return D1, D2, L
+
+    def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
+        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2): array (N+1, 6), exact (analytic element gradients)."""
+        return self.gradients(h, Lam_n, r_n, xi, r_1, load_factor, (level, level + 1))[level]
+
+    def _block_pattern(self):
+        """Rows, columns (on the mask) and kept entries of the element blocks (N, 12, 12), built once."""
+        if getattr(self, "_pattern", None) is None:
+            N = self.N
+            idx = self.node_index().ravel()
+            e = np.arange(N)[:, None]
+            loc = np.arange(12)[None, :]
+            glob = (e + loc // 6) * 6 + loc % 6  # (N, 12) full index of each block row/column
+            rows = np.broadcast_to(idx[glob][:, :, None], (N, 12, 12)).ravel()
+            cols = np.broadcast_to(idx[glob][:, None, :], (N, 12, 12)).ravel()
+            keep = (rows >= 0) & (cols >= 0)
+            self._pattern = (rows[keep], cols[keep], keep)
+        return self._pattern
+
+    def assemble(self, blocks):
+        """Sparse (nz, nz) CSC matrix on the mask from element blocks (N, 12, 12) (block tridiagonal in nodes)."""
+        rows, cols, keep = self._block_pattern()
+        return sp.csc_matrix((blocks.ravel()[keep], (rows, cols)), shape=(self.nz, self.nz))
+
+    def step_jacobian(self, h, Lam_n, r_n, xi, r_1):
+        """Exact Jacobian of the step residual pi_n + D1 L_d + f^- (translational rows in the level-n body
+        frame) with respect to the unknowns (b, xi) on the mask: element blocks by complex step of the
+        analytic element gradient (``_k_step_blocks``), assembled.  The tip torque's f^- does not depend
+        on the unknowns."""
+        _, rhoA, inertia, J, K, g, force = self._consts()
+        blocks = np.empty((self.N, 12, 12))
+        f8 = np.float64
+        _k_step_blocks(float(h), self.ds, rhoA, inertia, J, K, g, self.paper_measure,
+                       np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
+                       np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), self.column_mask, EPS_CS, blocks)
+        return self.assemble(blocks)
+
+    def potential_hessian(self, Lam, r, load_factor=1.0):
+        """Exact d(-grad U)/dz (nz, nz) at (Lam, r) under Lambda cay(sigma), r + dr: the derivative of the
+        generalised force (tip torque included) that rod_statics' Newton and modes need."""
+        _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
+        blocks = np.empty((self.N, 12, 12))
+        _k_static_blocks(self.ds, rhoA, inertia, J, K, g, self.paper_measure, np.ascontiguousarray(Lam, dtype=np.float64),
+                         np.ascontiguousarray(r, dtype=np.float64), self.column_mask, EPS_CS, blocks)
+        for f in self.forces:  # the tip torque's generalised force turns with the tip frame
+            blocks[-1, 9:, 9:] += load_factor * f.stiffness_block(Lam)
+        return self.assemble(blocks)
+
+    def derivative_complex_step(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
+        """d L_d / d(dr, sigma) at level 0 (D1) or 1 (D2) by complex step of the whole L_d (``_k_pieces``):
+        the independent reference of the analytic :meth:`derivative` (tested equal)."""
+        sig, dr, colour, direction = self._cs_plan()
+        try:
+            elem, node = self.pieces_fast(h, Lam_n, r_n, xi, r_1, sig, dr, level, load_factor)
+        except ZeroDivisionError:
+            # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
+            # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
+            return np.full((self.N + 1, 6), np.nan)
+        out = np.zeros((self.N + 1, 6))
+        _k_accumulate(elem, node, colour, direction, 1.0 / EPS_CS, out)
+        return out
+
+    def accumulate_reference(self, elem, node):
+        """NumPy twin of ``_k_accumulate`` (tested equal): each element's derivative goes to the one
+        node of the perturbed colour it touches, plus the node pieces of that colour."""
+        N = self.N
+        _, _, colour, direction = self._cs_plan()
+        de, dn = elem.imag / EPS_CS, node.imag / EPS_CS
+        out = np.zeros((N + 1, 6))
+        e = np.arange(N)
+        owners = (np.where(e % 2 == 0, e, e + 1), np.where(e % 2 == 1, e, e + 1))
+        for b, (c, d) in enumerate(zip(colour, direction)):
+            out[:, d] += np.bincount(owners[c], weights=de[b], minlength=N + 1)
+            out[c::2, d] += dn[b, c::2]
+        return out
+
+    def generalised_forces(self, Lam, load_factor=1.0):
+        """Static generalised force of the non-conservative forces, (N+1, 6)."""
+        f = np.zeros((self.N + 1, 6))
+        for force in self.forces:
+            f += load_factor * force.generalised(Lam)
+        return f
+
+    def declarations(self):
+        """What each term, force and end does to the invariants (varint.terms.forces.Declaration)."""
+        decl = [Declaration(name) for name in ("rod_kinetic", "bending_torsion", "stretch_shear")]
+        if np.any(self.g):
+            decl.append(Declaration("gravity", {"linear_momentum": "linear_momentum_transverse_to_gravity",
+                                                "angular_momentum": "angular_momentum_along_gravity"}))
+        if np.any(self.force):  # a dead force at the tip: conservative (its potential -F.r_N), not symmetric
+            decl.append(Declaration("tip_force", {"linear_momentum": None, "angular_momentum": None}))
+        decl += [f.declaration for f in self.forces]
+        ends = (self.scene.rod.ends.s0, self.scene.rod.ends.sL)
+        if self.periodic:
+            # translations keep the period d = L E_1; of the rotations only those about d do
+            decl.append(Declaration("ends", {"angular_momentum": "angular_momentum_along_the_period"}))
+        elif ends == ("pinned", "pinned") and self.dim == 3:
+            # bearings at both ends: turning about the line through them keeps both pins in place
+            decl.append(Declaration("ends", {"linear_momentum": None,
+                                             "angular_momentum": "angular_momentum_about_the_bearing_axis"}))
+        elif any(e in ("clamped", "pinned") for e in ends):
+            decl.append(Declaration("ends", {"linear_momentum": None, "angular_momentum": None}))
+        return decl
+
+    def expected_invariants(self):
+        """Derived from the declarations of the terms, forces and ends (varint.terms.forces.derive_invariants)."""
+        return derive_invariants(self.declarations())
+
+    def describe(self):
+        s = self.section
+        unknowns = {"r": self.layout["r"], "Lambda": self.layout["Lambda"]}
+        if self.constrained:
+            unknowns["n"] = self.nlam
+        return {"effects": list(self.scene.effects), "unknowns": unknowns,
+                "unknowns_total": self.nz + self.nlam, "inertial_unknowns": self.nz, "algebraic_unknowns": self.nlam,
+                "terms": ["rod_kinetic", "bending_torsion", "inextensibility" if self.constrained else "stretch_shear"]
+                + (["gravity"] if np.any(self.g) else [])
+                + (["tip_force"] if np.any(self.force) else []),
+                "forces": [f.declaration.name for f in self.forces],
+                "invariants": self.expected_invariants(), "scheme": "midpoint",
+                "initial_shape": "given" if self.steady_rotation is None else
+                f"steady rotation ({self.steady_rotation['iterations']} Newton iterations, chord turned "
+                f"{self.steady_rotation['turned_deg']:.3g} deg)",
+                "lattice": {"elements": self.N, "ds": self.ds, "parcels": 0, "periodic": False},
+                "rod": {"dimension": self.dim, "measure": "paper" if self.paper_measure else "reference",
+                        "mass_per_length": s.rhoA, "bending_stiffness": s.EI, "torsional_stiffness": s.GJ,
+                        # (None: not given, for the inextensible rod that has no such energy)
+                        "axial_stiffness": s.EA if math.isfinite(s.EA) else None,
+                        "shear_stiffness": s.kGA if math.isfinite(s.kGA) else None, "rotary_inertia": s.rhoI,
+                        "constraint": "inextensible_unshearable" if self.constrained else "none"}}
+
+
+def banded_jacobian(func, z, mask, ds, rel_step=1e-6):
+    """Jacobian of a node-local map by colour-grouped central differences.
+
+    ``func(z) -> (N+1, 6)`` must have the value at node j depend only on the unknowns of nodes
+    j-1..j+1 (true of every derivative of the rod's L_d); three colours then cover the band, so the
+    cost is 2 x 3 x (active directions) evaluations whatever N is.  Returns CSC (n, n) on the mask.
+    """
+    n_nodes = mask.shape[0]
+    idx = np.full(mask.shape, -1)
+    idx[mask] = np.arange(int(mask.sum()))
+    rows, cols, vals = [], [], []
+    for c in range(3):
+        for d in range(6):
+            nodes = np.arange(c, n_nodes, 3)
+            nodes = nodes[mask[nodes, d]]
+            if len(nodes) == 0:
+                continue
+            e = np.zeros(mask.shape)
+            step = rel_step * (ds if d < 3 else 1.0)
+            e[nodes, d] = step
+            dz = e[mask]
+            D = (func(z + dz) - func(z - dz)) / (2 * step)
+            for j in nodes:
+                lo, hi = max(j - 1, 0), min(j + 1, n_nodes - 1)
+                ridx = idx[lo:hi + 1]
+                keep = ridx >= 0
+                rows.append(ridx[keep])
+                cols.append(np.full(int(keep.sum()), idx[j, d]))
+                vals.append(D[lo:hi + 1][keep])
+    n = int(mask.sum())
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
+def pack_level(Lam, r, origin=None):
+    """The rod's part of a level vector q: (positions relative to the origin, frames, origin)."""
+    return np.concatenate([r.ravel(), Lam.ravel(), np.zeros(3) if origin is None else origin])
+
+
+def unpack_level(q, N):
+    """(Lambda, r relative to the origin, origin) from the rod's part of a level vector."""
+    n3 = 3 * (N + 1)
+    return q[n3:12 * (N + 1)].reshape(N + 1, 3, 3), q[:n3].reshape(N + 1, 3), q[12 * (N + 1):]
+
+
+#: grid of the floating origin's moves (m): multiples of 2^-20 add exactly to an origin on the same grid
+ORIGIN_GRID = 2.0 ** -20
+
+
+def origin_shift(x):
+    """The floating origin's move to the point x: x rounded to ORIGIN_GRID (subtracting it from nearby positions is exact)."""
+    return np.round(x / ORIGIN_GRID) * ORIGIN_GRID
+
+
+# ---------------------------------------------------------------------------
+# numba kernel of RodPart.lagrangian_pieces (complex arithmetic, for the complex-step derivatives)
+
+
+@njit(cache=True, inline="always")
+def _k_cay(w0, w1, w2, out):
+    c = 4.0 / (4.0 + w0 * w0 + w1 * w1 + w2 * w2)
+    out[0, 0] = 1.0 - 0.5 * c * (w1 * w1 + w2 * w2)
+    out[1, 1] = 1.0 - 0.5 * c * (w0 * w0 + w2 * w2)
+    out[2, 2] = 1.0 - 0.5 * c * (w0 * w0 + w1 * w1)
+    out[0, 1] = c * (-w2 + 0.5 * w0 * w1)
+    out[1, 0] = c * (w2 + 0.5 * w0 * w1)
+    out[0, 2] = c * (w1 + 0.5 * w0 * w2)
+    out[2, 0] = c * (-w1 + 0.5 * w0 * w2)
+    out[1, 2] = c * (-w0 + 0.5 * w1 * w2)
+    out[2, 1] = c * (w0 + 0.5 * w1 * w2)
+
+
+@njit(cache=True, inline="always")
+def _k_cay_inv(L, out):
+    f = 2.0 / (1.0 + L[0, 0] + L[1, 1] + L[2, 2])
+    out[0] = f * (L[2, 1] - L[1, 2])
+    out[1] = f * (L[0, 2] - L[2, 0])
+    out[2] = f * (L[1, 0] - L[0, 1])
+
+
+@njit(cache=True, inline="always")
+def _k_mm(A, B, out):
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@njit(cache=True, inline="always")
+def _k_mtm(A, B, out):
+    """out = A^T B."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
+
+
+@njit(cache=True)
+def _k_strains(Lam, r, ds, Om, Ga):
+    N = Lam.shape[0] - 1
+    T = np.empty((3, 3), dtype=np.complex128)
+    for e in range(N):
+        _k_mtm(Lam[e], Lam[e + 1], T)
+        _k_cay_inv(T, Om[e])
+        for i in range(3):
+            Om[e, i] /= ds
+        for i in range(3):
+            s = 0.0 + 0.0j
+            for k in range(3):
+                s += 0.5 * (Lam[e, k, i] + Lam[e + 1, k, i]) * (r[e + 1, k] - r[e, k])
+            Ga[e, i] = s / ds
+
+
+@njit(cache=True)
+def _k_accumulate(elem, node, plan_colour, plan_dir, inv_eps, out):
+    """out[j, d] += Im(elem)/eps of the elements touching j (one colour per batch) and Im(node)/eps of j."""
+    B, N = elem.shape
+    for b in range(B):
+        c, d = plan_colour[b], plan_dir[b]
+        for e in range(N):
+            owner = e if e % 2 == c else e + 1
+            out[owner, d] += elem[b, e].imag * inv_eps
+        for j in range(c, N + 1, 2):
+            out[j, d] += node[b, j].imag * inv_eps
+
+
+@njit(cache=True)
+def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd, g, force, paper, elem, node):
+    """elem[b, e], node[b, j] of L_d for every perturbation b (see RodPart.lagrangian_pieces)."""
+    B = sig.shape[0]
+    N = Lam_n.shape[0] - 1
+    C = np.empty((3, 3), dtype=np.complex128)
+    T = np.empty((3, 3), dtype=np.complex128)
+    Ln = np.empty((N + 1, 3, 3), dtype=np.complex128)
+    L1 = np.empty((N + 1, 3, 3), dtype=np.complex128)
+    rn = np.empty((N + 1, 3), dtype=np.complex128)
+    r1 = np.empty((N + 1, 3), dtype=np.complex128)
+    xp = np.empty((N + 1, 3), dtype=np.complex128)
+    k = np.empty(N + 1, dtype=np.complex128)
+    Om0 = np.empty((N, 3), dtype=np.complex128)
+    Ga0 = np.empty((N, 3), dtype=np.complex128)
+    Om1 = np.empty((N, 3), dtype=np.complex128)
+    Ga1 = np.empty((N, 3), dtype=np.complex128)
+    # the unperturbed level and cay(xi) are the same for every batch: compute them once
+    Cxs = np.empty((N + 1, 3, 3), dtype=np.complex128)
+    for j in range(N + 1):
+        _k_cay(xi[j, 0], xi[j, 1], xi[j, 2], Cxs[j])
+        if level == 0:
+            _k_mm(Lam_n[j], Cxs[j], L1[j])
+            for i in range(3):
+                r1[j, i] = r_1[j, i]
+        else:
+            for i in range(3):
+                rn[j, i] = r_n[j, i]
+                for m in range(3):
+                    Ln[j, i, m] = Lam_n[j, i, m]
+    if level == 0:
+        _k_strains(L1, r1, ds, Om1, Ga1)
+    else:
+        _k_strains(Ln, rn, ds, Om0, Ga0)
+    for b in range(B):
+        for j in range(N + 1):
+            Cx = Cxs[j]
+            _k_cay(sig[b, j, 0], sig[b, j, 1], sig[b, j, 2], C)
+            if level == 0:
+                _k_mm(Lam_n[j], C, Ln[j])
+                _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
+                _k_cay_inv(T, xp[j])
+                for i in range(3):
+                    rn[j, i] = r_n[j, i] + dr[b, j, i]
+            else:
+                _k_mm(Lam_n[j], Cx, T)
+                _k_mm(T, C, L1[j])
+                _k_mm(Cx, C, T)
+                _k_cay_inv(T, xp[j])
+                for i in range(3):
+                    r1[j, i] = r_1[j, i] + dr[b, j, i]
+            kv = 0.0 + 0.0j
+            kw = 0.0 + 0.0j
+            for i in range(3):
+                v = (r1[j, i] - rn[j, i]) / h
+                kv += v * v
+                kw += inertia[i] * xp[j, i] * xp[j, i]
+            k[j] = 0.5 * rhoA * kv + 0.5 * kw / (h * h)
+        if level == 0:
+            _k_strains(Ln, rn, ds, Om0, Ga0)
+        else:
+            _k_strains(L1, r1, ds, Om1, Ga1)
+        for e in range(N):
+            W = 0.0 + 0.0j
+            gg = 0.0 + 0.0j
+            grav = 0.0 + 0.0j
+            for i in range(3):
+                om = 0.5 * (Om0[e, i] + Om1[e, i])
+                ga = 0.5 * (Ga0[e, i] + Ga1[e, i])
+                dg = ga - (1.0 if i == 0 else 0.0)
+                W += 0.5 * Jd[i] * om * om + 0.5 * Kd[i] * dg * dg
+                gg += ga * ga
+                grav += g[i] * 0.5 * (rn[e, i] + r1[e, i] + rn[e + 1, i] + r1[e + 1, i]) * 0.5
+            mu = np.sqrt(gg) if paper else 1.0 + 0.0j
+            elem[b, e] = h * ds * mu * (0.5 * (k[e] + k[e + 1]) - W + rhoA * grav)
+        for j in range(N + 1):
+            node[b, j] = 0.0
+        fN = 0.0 + 0.0j
+        for i in range(3):
+            fN += force[i] * 0.5 * (rn[N, i] + r1[N, i])
+        node[b, N] = h * fN
+
+
+# ---------------------------------------------------------------------------
+# exact element derivatives (docs/theory.md §9): the element's discrete Lagrangian, its analytic
+# gradient with respect to the Lie-group variations of both levels, and the Newton block (the
+# derivative of that gradient with respect to the step unknowns) by complex step of the analytic
+# gradient.  Every kernel is generic in the scalar type: real for the residual, complex for the
+# complex-step columns.
+#
+# Gradient layout of an element e = (a, b) = (j, j+1): [dr_a, sigma_a, dr_b, sigma_b] (12).
+
+
+@njit(cache=True, inline="always")
+def _k_dcinvT(w, v, s, out):
+    """out = (dcay^-1_{s w})^T v = v + (s/2) w x v + (w.v)/4 w   (s = +-1)."""
+    wv = 0.25 * (w[0] * v[0] + w[1] * v[1] + w[2] * v[2])
+    out[0] = v[0] + 0.5 * s * (w[1] * v[2] - w[2] * v[1]) + wv * w[0]
+    out[1] = v[1] + 0.5 * s * (w[2] * v[0] - w[0] * v[2]) + wv * w[1]
+    out[2] = v[2] + 0.5 * s * (w[0] * v[1] - w[1] * v[0]) + wv * w[2]
+
+
+@njit(cache=True, inline="always")
+def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
+    """Discrete Lagrangian of one element (returned) and its exact gradients.
+
+    ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
+    of level n+1 (level n held), layout [dr_a, sigma_a, dr_b, sigma_b].  The level n+1 frames are
+    L0 cay(xi).  Only levels lev_lo <= level < lev_hi are computed ((0, 1): D1 only; (1, 2): D2 only).
+    All arrays share one scalar type (float64, or complex128 for complex steps);
+    ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
+    """
+    Ca, Cb, L1a, L1b, T = M[0], M[1], M[2], M[3], M[4]
+    _k_cay(xia[0], xia[1], xia[2], Ca)
+    _k_cay(xib[0], xib[1], xib[2], Cb)
+    _k_mm(L0a, Ca, L1a)
+    _k_mm(L0b, Cb, L1b)
+    om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
+    Gb, Ob, gG, gw, tmp, Ixa, Ixb = V[8], V[9], V[10], V[11], V[12], V[13], V[14]
+    _k_mtm(L0a, L0b, T)
+    _k_cay_inv(T, om0)
+    _k_mtm(L1a, L1b, T)
+    _k_cay_inv(T, om1)
+    for i in range(3):
+        dr0[i] = r0b[i] - r0a[i]
+        dr1[i] = r1b[i] - r1a[i]
+    for i in range(3):
+        pa0[i] = L0a[0, i] * dr0[0] + L0a[1, i] * dr0[1] + L0a[2, i] * dr0[2]
+        pb0[i] = L0b[0, i] * dr0[0] + L0b[1, i] * dr0[1] + L0b[2, i] * dr0[2]
+        pa1[i] = L1a[0, i] * dr1[0] + L1a[1, i] * dr1[1] + L1a[2, i] * dr1[2]
+        pb1[i] = L1b[0, i] * dr1[0] + L1b[1, i] * dr1[1] + L1b[2, i] * dr1[2]
+    Gb[0] = 0.0  # (scratch is uninitialised: a zero of the scalar type)
+    W = Gb[0]
+    gg = Gb[0]
+    grav = Gb[0]
+    ka = Gb[0]
+    kb = Gb[0]
+    ih2 = 1.0 / (h * h)
+    for i in range(3):
+        Gb[i] = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
+        Ob[i] = 0.5 * (om0[i] + om1[i]) / ds
+        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        W += 0.5 * Jd[i] * Ob[i] * Ob[i] + 0.5 * Kd[i] * dg * dg
+        gg += Gb[i] * Gb[i]
+        grav += g[i] * 0.25 * (r0a[i] + r1a[i] + r0b[i] + r1b[i])
+        va = r1a[i] - r0a[i]
+        vb = r1b[i] - r0b[i]
+        Ixa[i] = inertia[i] * xia[i]
+        Ixb[i] = inertia[i] * xib[i]
+        ka += 0.5 * (rhoA * va * va + Ixa[i] * xia[i]) * ih2
+        kb += 0.5 * (rhoA * vb * vb + Ixb[i] * xib[i]) * ih2
+    P = 0.5 * (ka + kb) - W + rhoA * grav
+    if paper:
+        mu = np.sqrt(gg)
+    else:
+        mu = 1.0 + 0.0 * gg
+    c = h * ds * mu
+    # gradients of E = h ds mu P with respect to each level's strains (the same for both levels)
+    for i in range(3):
+        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        gG[i] = -0.5 * c * Kd[i] * dg
+        if paper:
+            gG[i] += h * ds * P * 0.5 * Gb[i] / mu
+        gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
+    for lev in range(lev_lo, lev_hi):
+        D = D1 if lev == 0 else D2
+        La = L0a if lev == 0 else L1a
+        Lb = L0b if lev == 0 else L1b
+        om = om0 if lev == 0 else om1
+        pa = pa0 if lev == 0 else pa1
+        pb = pb0 if lev == 0 else pb1
+        sgn = -1.0 if lev == 0 else 1.0
+        for i in range(3):
+            # Gamma = (La + Lb)^T (rb - ra) / (2 ds);  gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2
+            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+            D[i] = -f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
+            D[6 + i] = f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
+        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds);  domega = -dcay^-1_om sigma
+        _k_dcinvT(om, gw, 1.0, tmp)
+        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds) - tmp[0]
+        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds) - tmp[1]
+        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds) - tmp[2]
+        # sigma_b: domega = dcay^-1_{-om} sigma
+        _k_dcinvT(om, gw, -1.0, tmp)
+        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds) + tmp[0]
+        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds) + tmp[1]
+        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds) + tmp[2]
+        # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
+        _k_dcinvT(xia, Ixa, -sgn, tmp)
+        for i in range(3):
+            D[3 + i] += sgn * 0.5 * c * ih2 * tmp[i]
+        _k_dcinvT(xib, Ixb, -sgn, tmp)
+        for i in range(3):
+            D[9 + i] += sgn * 0.5 * c * ih2 * tmp[i]
+    return c * P
+
+
+@njit(cache=True)
+def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev_lo, lev_hi, D1, D2):
+    """Sum of the element gradients (and the tip force's node piece) into D1, D2 (N+1, 6); returns L_d."""
+    N = Lam_n.shape[0] - 1
+    M = np.empty((5, 3, 3), Lam_n.dtype)
+    V = np.empty((16, 3), Lam_n.dtype)
+    e1 = np.empty(12, Lam_n.dtype)
+    e2 = np.empty(12, Lam_n.dtype)
+    D1[:] = 0.0
+    D2[:] = 0.0
+    L = 0.0
+    for e in range(N):
+        L += _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
+                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev_lo, lev_hi, e1, e2, M, V)
+        for i in range(6):
+            D1[e, i] += e1[i]
+            D1[e + 1, i] += e1[6 + i]
+            D2[e, i] += e2[i]
+            D2[e + 1, i] += e2[6 + i]
+    for i in range(3):
+        D1[N, i] += 0.5 * h * force[i]
+        D2[N, i] += 0.5 * h * force[i]
+        L += 0.5 * h * force[i] * (r_n[N, i] + r_1[N, i])
+    return L
+
+
+@njit(cache=True)
+def _element_scratch():
+    """Complex work arrays of one :func:`_k_element` call: (M, V, D1, D2, Lambda_a, Lambda_b)."""
+    c = np.complex128
+    return (np.empty((5, 3, 3), c), np.empty((16, 3), c), np.empty(12, c), np.empty(12, c),
+            np.empty((3, 3), c), np.empty((3, 3), c))
+
+
+@njit(cache=True, inline="always")
+def _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb):
+    """Element e's level-(n+1) chart in the step unknowns u = (b_a, xi_a, b_b, xi_b), column k moved by i eps:
+    xi of its two nodes into xa, xb and r_1 into qa, qb (a b-column moves r_1 along the level-n frame's
+    column d, since r_1 = r_n + Lambda_n b).  Shared by the Newton blocks of every rod kernel."""
+    for i in range(3):
+        xa[i] = xi[e, i]
+        xb[i] = xi[e + 1, i]
+        qa[i] = r_1[e, i]
+        qb[i] = r_1[e + 1, i]
+    d = k % 3
+    if k < 3:
+        for i in range(3):
+            qa[i] += 1j * eps * Lam_n[e, i, d]
+    elif k < 6:
+        xa[d] += 1j * eps
+    elif k < 9:
+        for i in range(3):
+            qb[i] += 1j * eps * Lam_n[e + 1, i, d]
+    else:
+        xb[d] += 1j * eps
+
+
+@njit(cache=True, inline="always")
+def _k_body_rows(Lam_n, e, col, out):
+    """out = an element's 12 derivative rows ``col`` with each node's translational rows rotated into its
+    level-n body frame (the rows of the step residual)."""
+    for i in range(3):
+        out[i] = Lam_n[e, 0, i] * col[0] + Lam_n[e, 1, i] * col[1] + Lam_n[e, 2, i] * col[2]
+        out[6 + i] = Lam_n[e + 1, 0, i] * col[6] + Lam_n[e + 1, 1, i] * col[7] + Lam_n[e + 1, 2, i] * col[8]
+        out[3 + i] = col[3 + i]
+        out[9 + i] = col[9 + i]
+
+
+@njit(cache=True, inline="always")
+def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
+    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
+    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
+    (both-level) blocks."""
+    for i in range(3):
+        ra[i] = r[e, i]
+        rb[i] = r[e + 1, i]
+        for m in range(3):
+            La[i, m] = Lam[e, i, m]
+            Lb[i, m] = Lam[e + 1, i, m]
+    d = k % 3
+    if k < 3:
+        ra[d] += 1j * eps
+    elif 6 <= k < 9:
+        rb[d] += 1j * eps
+    else:  # sigma of node a (k < 6) or b
+        w[:] = 0.0
+        w[d] = 1j * eps
+        _k_cay(w[0], w[1], w[2], C)
+        node = e if k < 6 else e + 1
+        for i in range(3):
+            for m in range(3):
+                Lc[i, m] = Lam[node, i, m]
+        _k_mm(Lc, C, La if k < 6 else Lb)
+
+
+@njit(cache=True)
+def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
+    """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
+
+    u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
+    frame of their node (as the stepper's residual rows: varint.terms.step.RodElements).  By complex step of the analytic
+    gradient: exact to round-off.  Columns of unknowns off the ``mask`` (N+1, 6) are left zero.
+    """
+    N = Lam_n.shape[0] - 1
+    c = np.complex128
+    M, V, e1, e2, La, Lb = _element_scratch()
+    ra = np.empty(3, c)
+    rb = np.empty(3, c)
+    xa = np.empty(3, c)
+    xb = np.empty(3, c)
+    qa = np.empty(3, c)
+    qb = np.empty(3, c)
+    col = np.empty(12)
+    inv = 1.0 / eps
+    for e in range(N):
+        for i in range(3):
+            ra[i] = r_n[e, i]
+            rb[i] = r_n[e + 1, i]
+            for m in range(3):
+                La[i, m] = Lam_n[e, i, m]
+                Lb[i, m] = Lam_n[e + 1, i, m]
+        for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                continue
+            _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
+            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
+            for i in range(12):
+                col[i] = e1[i].imag * inv
+            _k_body_rows(Lam_n, e, col, blocks[e, :, k])
+
+
+@njit(cache=True)
+def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blocks):
+    """Blocks of d(-grad U)/dz: blocks[e, :, k] = d(D1 + D2 of element e at h = 1, xi = 0)/d z_k under
+    z = (dr_a, sigma_a, dr_b, sigma_b), Lambda -> Lambda cay(sigma), r -> r + dr (both levels).
+    By complex step of the analytic gradient: exact to round-off.  Columns off the ``mask`` are left zero."""
+    N = Lam.shape[0] - 1
+    c = np.complex128
+    M, V, e1, e2, La, Lb = _element_scratch()
+    C = np.empty((3, 3), c)
+    ra = np.empty(3, c)
+    rb = np.empty(3, c)
+    zero = np.zeros(3, c)
+    w = np.zeros(3, c)
+    Lc = np.empty((3, 3), c)  # the node's frame, complex, for the sigma columns
+    inv = 1.0 / eps
+    for e in range(N):
+        for k in range(12):
+            if not mask[e + k // 6, k % 6]:
+                for i in range(12):
+                    blocks[e, i, k] = 0.0
+                continue
+            _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
+            _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
+            for i in range(12):
+                blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
+    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
+    ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
+    _k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
+    _k_mm(Lam_n[e], C, A)
+    _k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
+    _k_mm(Lam_n[e + 1], C, B)
+    gg = 0.0
+    for i in range(3):
+        gi = 0.0
+        for k in range(3):
+            d0 = r_n[e + 1, k] - r_n[e, k]
+            d1 = d0 + dr[e + 1, k] - dr[e, k]
+            gi += (Lam_n[e, k, i] + Lam_n[e + 1, k, i]) * d0 + (A[k, i] + B[k, i]) * d1
+        gg += (gi / (4.0 * ds)) ** 2
+    return math.sqrt(gg)
