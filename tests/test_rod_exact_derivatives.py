@@ -1,4 +1,4 @@
-"""Exact element derivatives of the rod (varint/terms/rod.py, ``_k_element`` and friends; docs/theory.md §9).
+"""Exact element derivatives of the rod (varint/terms/rod.py, ``k_element`` and friends; docs/theory.md §9).
 
 The analytic element gradient against the complex step of the whole discrete Lagrangian; the Newton
 Jacobian assembled from the element blocks (complex step of the analytic gradient) against central
@@ -12,7 +12,7 @@ import pytest
 
 from varint import Simulation, build_model
 from varint.lattice.lie import cay, cay_inv, dcay_inv
-from varint.terms.rod import EPS_CS, _k_dcinvT, _k_element, banded_jacobian
+from varint.terms.rod import EPS_CS, _k_dcinvT, k_element, banded_jacobian
 from varint.model.statics import force_jacobian, force_map
 
 from test_rod import SECTION, rod_scene, solid_section
@@ -45,14 +45,14 @@ def test_dcay_inverse_transpose_kernel_equals_lie_reference():
 
 @pytest.mark.parametrize("measure", ["reference", "paper"])
 def test_element_kernel_energy_equals_the_numpy_lagrangian(measure):
-    """_k_element's value is the element piece of RodModel.lagrangian_pieces (the NumPy reference)."""
+    """k_element's value is the element piece of RodModel.lagrangian_pieces (the NumPy reference)."""
     model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"]))
     (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(1))
     xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
     elem, _ = model.rod.lagrangian_pieces(1e-3, L0, r0, xi, r1)
     _, rhoA, inertia, J, K, g, _ = model.rod._consts()
     for e in (0, 4, model.N - 1):
-        val = _k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
+        val = k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
                          xi[e], xi[e + 1], r1[e], r1[e + 1], 0, 2, np.empty(12), np.empty(12), np.empty((5, 3, 3)),
                          np.empty((16, 3)))
         assert val == pytest.approx(elem[e], rel=1e-14)

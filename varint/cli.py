@@ -211,10 +211,10 @@ def cmd_static(args):
     _write_static(out, scene, Simulation(model), info["load_steps"], extra)
     tip = r[-1]
     what = "steady rotation (shape at rest in the spinning frame)" if spinning else "static equilibrium"
-    from .analysis.modes import _turned
+    from .analysis.modes import turned_note
 
-    if _turned(info):
-        what += f", with {_turned(info)}"
+    if turned_note(info):
+        what += f", with {turned_note(info)}"
     print(f"wrote {out}: {what} in {info['iterations']} Newton iterations over {info['load_steps']} load steps; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0

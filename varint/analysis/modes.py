@@ -14,7 +14,7 @@ from ..errors import VarintError
 __all__ = ["scene_modes", "strongest"]
 
 
-def _turned(info):
+def turned_note(info):
     """How far a steady-rotation search turned the rod, in words ("" when not noticeably)."""
     deg = info.get("turned_deg", 0.0)
     return (f"the rod's end-to-end chord turned by {deg:.1f} deg from the scene's shape (spin about no principal "
@@ -82,8 +82,8 @@ def scene_modes(scene, count=20, about="initial", source=None):
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
             Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
             res = rod_modes(model, count=count, Lam=Lam, r=r, lam=info.get("element_forces"))
-            if _turned(info):
-                d["remark"] = f"the steady rotation found has {_turned(info)}"
+            if turned_note(info):
+                d["remark"] = f"the steady rotation found has {turned_note(info)}"
         else:
             res = rod_modes(model, count=count)
             loads = _loads(model.rod)

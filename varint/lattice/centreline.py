@@ -68,7 +68,7 @@ def centreline_weights(s, n_nodes, ds, periodic=False):
     N = np.empty((len(s), 4))
     dN = np.empty((len(s), 4))
     d2N = np.empty((len(s), 4))
-    _k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N)
+    k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N)
     return nodes, N, dN, d2N
 
 
@@ -112,7 +112,7 @@ def _cr_basis(t, out, dout, d2out):
 
 
 @njit(cache=True)
-def _k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
+def k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
     b = np.empty(4)
     db = np.empty(4)
     d2b = np.empty(4)
@@ -216,7 +216,7 @@ def stretched_volume_derivatives(s, R, gamma, ds, periodic=False):
     index = np.full((M, n_loc), -1, np.int64)
     grad = np.zeros((M, n_loc))
     hess = np.zeros((M, n_loc, n_loc))
-    _k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess)
+    k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess)
     return V, index, grad, hess
 
 
@@ -336,7 +336,7 @@ def _add_end(Rl, gl, t, sign, ds, slot, n_nodes, label, g, H):
 
 
 @njit(cache=True)
-def _k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess):
+def k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess):
     nR = R.shape[0]
     M = s.shape[0] - 1
     Rl = np.empty(2)

@@ -278,7 +278,7 @@ def _volumes(s, R, ds, periodic, V):
 
 
 @njit(cache=True)
-def _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, g):
+def k_parcel_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, g):
     """dV_k/d(local unknowns): g[0] = s_k, g[1] = s_{k+1}, g[2+i] = node e0+i."""
     nR = R.shape[0]
     for i in range(g.shape[0]):
@@ -306,7 +306,7 @@ def _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, g):
 
 
 @njit(cache=True)
-def _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, H):
+def k_parcel_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, H):
     """Second derivatives of V_k in the local unknowns (same order as the gradient)."""
     n = H.shape[0]
     for i in range(n):
@@ -391,7 +391,7 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
         nfull = 2 + e1 - e0 + 2
         gl = g[:nfull]
         if ok[k]:
-            r0, r1, a0, b0, a1, b1 = _local_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, gl)
+            r0, r1, a0, b0, a1, b1 = k_parcel_gradient(s, R, ds, periodic, k, e0, t0, e1, t1, gl)
         else:
             gl[:] = np.nan
             r0 = r1 = a0 = b0 = a1 = b1 = np.nan
@@ -407,7 +407,7 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
         if want_hessian:
             Hl = H[:nfull, :nfull]
             if ok[k]:
-                _local_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
+                k_parcel_hessian(ds, e0, t0, e1, t1, r0, r1, a0, b0, a1, b1, Hl)
             else:
                 Hl[:, :] = np.nan
             nl = nfull if want_R else 2

@@ -7,7 +7,7 @@ The stepper (varint/run/simulation.py ``Simulation._solve``) solves a rod step n
 
 with the step unknowns z = (b, xi) on the support mask (r_{n+1} = r_n + Lambda_n b, Lambda_{n+1} = Lambda_n cay(xi)),
 the translational rows rotated into the level-n body frames (rot_n) and a periodic rod's image node folded into
-node 0.  Here the same residual is assembled by the same element kernel (``varint.terms.rod._k_element``, the analytic
+node 0.  Here the same residual is assembled by the same element kernel (``varint.terms.rod.k_element``, the analytic
 gradient of one element's L_d) and the same Newton blocks (``varint.terms.rod._k_step_blocks``, complex step of that
 gradient), but
 
@@ -41,7 +41,7 @@ Use::
 
 Compilation: the kernels take ~30 s to compile on first use (measured on a loaded 2-core machine), then load from
 numba's cache in 0.2 s.  They inline varint.terms.rod's element kernels, and numba's cache is keyed on *this* file's
-timestamp only: after editing ``_k_element`` (or the helpers it inlines) in varint/terms/rod.py, touch this file (or clear
+timestamp only: after editing ``k_element`` (or the helpers it inlines) in varint/terms/rod.py, touch this file (or clear
 ``varint/__pycache__/rod_step_fast.*``), or a stale compiled copy keeps running.  tests/test_rod_step_fast.py, which
 compares the residual and Jacobian with Step's, would catch it.
 """
@@ -55,7 +55,7 @@ from numba import njit
 
 from ..errors import SolverError
 from .newton import newton_damped
-from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, _k_body_rows, _k_cay, _k_chart_column, _k_element, _k_measure, unpack_level)
+from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_body_rows, k_cay, k_chart_column, k_element, k_measure, unpack_level)
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -205,8 +205,8 @@ def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n
             rb0[i] = r_n[e + 1, i] - r_n[e, i]
             ra1[i] = dr[e, i]
             rb1[i] = rb0[i] + dr[e + 1, i]
-        # _k_cay / _k_cay_inv divide by 4 + |w|^2 and 1 + tr: a pi rotation raises ZeroDivisionError in numba
-        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], ra0, rb0,
+        # k_cay / _k_cay_inv divide by 4 + |w|^2 and 1 + tr: a pi rotation raises ZeroDivisionError in numba
+        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], ra0, rb0,
                    xi[e], xi[e + 1], ra1, rb1, lev, lev + 1, e1, e2, M, V)
         src = e1 if lev == 0 else e2
         for i in range(6):
@@ -257,9 +257,9 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
 @njit(cache=True, error_model="numpy")
 def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku, cs, col, ab):
     """The step's exact Jacobian (Step.jacobian) in band storage ab (LAPACK layout by columns, see _k_band_lu), band
-    order.  Column k of element e's block: the complex step of the analytic element gradient D1 (``_k_element``) in the
-    chart u = (b_a, xi_a, b_b, xi_b) (``_k_chart_column``), translational rows in the level-n body frames
-    (``_k_body_rows``): the loop of varint.terms.rod._k_step_blocks, assembled in place.  ``cs``: complex scratch
+    order.  Column k of element e's block: the complex step of the analytic element gradient D1 (``k_element``) in the
+    chart u = (b_a, xi_a, b_b, xi_b) (``k_chart_column``), translational rows in the level-n body frames
+    (``k_body_rows``): the loop of varint.terms.rod._k_step_blocks, assembled in place.  ``cs``: complex scratch
     (varint.terms.rod._element_scratch layout, then ra, rb, xa, xb, qa, qb).  Returns False if not finite."""
     N = Lam_n.shape[0] - 1
     M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
@@ -281,11 +281,11 @@ def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1
             kc = idx[e + k // 6, k % 6]
             if kc < 0:
                 continue
-            _k_chart_column(Lam_n, xi, r_1, e, k, EPS_CS, xa, xb, qa, qb)
-            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
+            k_chart_column(Lam_n, xi, r_1, e, k, EPS_CS, xa, xb, qa, qb)
+            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
             for i in range(12):
                 col[12 + i] = e1[i].imag * inv
-            _k_body_rows(Lam_n, e, col[12:], col[:12])
+            k_body_rows(Lam_n, e, col[12:], col[:12])
             pc = bpos[kc]
             for a in range(12):
                 ka = idx[e + a // 6, a % 6]
@@ -575,7 +575,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
     L1 = q1[3 * n1:12 * n1].reshape(n1, 3, 3)
     T = M[4]  # (element scratch, free here)
     for j in range(n1):
-        _k_cay(xi[j, 0], xi[j, 1], xi[j, 2], C)
+        k_cay(xi[j, 0], xi[j, 1], xi[j, 2], C)
         for a in range(3):
             for b in range(3):
                 T[a, b] = Lam_n[j, a, 0] * C[0, b] + Lam_n[j, a, 1] * C[1, b] + Lam_n[j, a, 2] * C[2, b]
@@ -621,7 +621,7 @@ def _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, 
     """Node j's terms added to the closed-form balances (G's last column: P then J) and to their derivative G[:, :6]
     along a rigid motion (a, w) of level n+1 (see _k_rigid_system).  ca, cb: c = h ds mu of the elements before and
     after the node (0 where there is none).  The inertial and weight terms are written as the element kernel writes
-    them (``_k_element``, level n), with the same constant factors: a product such as c/h^2 rounded differently would
+    them (``k_element``, level n), with the same constant factors: a product such as c/h^2 rounded differently would
     be a fixed relative error of the masses, i.e. a bias eps |J| per step.  Each node's momentum and inertial terms are
     combined before they are summed: they nearly cancel (their difference is the node's internal force impulse), and
     the running sums then stay small."""
@@ -736,9 +736,9 @@ def _k_rigid_system(h, ds, rhoA, inertia, g, force, torque, paper, Lam_n, r_n, p
         ca = 0.0
         cb = 0.0
         if j > 0:
-            ca = h * ds * (_k_measure(j - 1, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+            ca = h * ds * (k_measure(j - 1, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
         if j < N:
-            cb = h * ds * (_k_measure(j, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
+            cb = h * ds * (k_measure(j, ds, Lam_n, r_n, xi, dr, A, B, C) if paper else 1.0)
         _k_polish_node(j, ca, cb, h, ds, rhoA, inertia, g, Lam_n, r_n, pin, xi, dr, G, A, B, AB)
     # the loads' halves at the tip: h F / 2 at r_N, f^- of the tip torque (Lambda_N f^- = h T / 2)
     f0, f1, f2 = 0.5 * h * force[0], 0.5 * h * force[1], 0.5 * h * force[2]

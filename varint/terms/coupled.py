@@ -35,7 +35,7 @@ U(y) - g . sum mbar X, the nodal stretch is linear, gamma = T G, and
     dL/dGammabar_e = -h (T^T dU/dgamma)_e ghat_e,      ghat_e = Gammabar_e / G_e,
     D_l rod = 1/2 A^lT dL/dGammabar,                  A^l: the Lie-variation Jacobian of Gamma^l (§10.3),
 
-A^l being the rod's strain Jacobian of varint/terms/rod.py (`_k_element`: dGamma/ddr_a = -(La + Lb)^T/(2 ds),
+A^l being the rod's strain Jacobian of varint/terms/rod.py (`k_element`: dGamma/ddr_a = -(La + Lb)^T/(2 ds),
 dGamma/dsigma_a = hat(p_a)/(2 ds)).  The Newton block is the chain rule of this through the exact
 Hessian of U in y (per-parcel Hessians of varint/lattice/centreline.py `stretched_volume_derivatives`,
 the closed-form Hessian of Vol) and the exact first derivatives of Gamma^{n+1} in the chart
@@ -618,7 +618,7 @@ def _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, ne
 
 from numba import njit  # noqa: E402
 
-from ..lattice.centreline import _k_centreline_weights, _k_stretched_derivatives  # noqa: E402
+from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
 
 _EPS = np.finfo(float).eps
 
@@ -734,7 +734,7 @@ def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period)
     index = np.full((M, n_loc), -1, np.int64)
     gV = np.zeros((M, n_loc))
     HV = np.zeros((M, n_loc, n_loc))
-    _k_stretched_derivatives(sbar, Rbar, gamma, ds, periodic, n_loc_nodes, V, index, gV, HV)
+    k_stretched_derivatives(sbar, Rbar, gamma, ds, periodic, n_loc_nodes, V, index, gV, HV)
     return sbar, Rbar, rbar, pa0, pb0, pa1, pb1, Gn, ghat, gamma, V, index, gV, HV
 
 
@@ -762,7 +762,7 @@ def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X
     """`centreline_and_weights`: weights of labels s on r and X, X', X'' (the period added to the nodes
     past the end of a periodic tube)."""
     n = r.shape[0]
-    _k_centreline_weights(s, n, ds, periodic, nodes, N, dN, d2N)
+    k_centreline_weights(s, n, ds, periodic, nodes, N, dN, d2N)
     for k in range(s.shape[0]):
         e = int(math.floor(s[k] / ds))
         for d in range(3):

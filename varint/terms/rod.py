@@ -13,7 +13,7 @@ Discrete Lagrangian of a step (docs/theory.md §9), a sum over elements e = (j, 
     rm_j = (r_j^n + r_j^{n+1}) / 2,   mu_e = |Ga_e| (the paper's measure) or 1 (reference-length measure)
 
 Its derivatives with respect to the Lie-group variations Lambda -> Lambda cay(eps sigma),
-r -> r + eps dr are element-local and exact: ``_k_element`` returns an element's L_d and its analytic
+r -> r + eps dr are element-local and exact: ``k_element`` returns an element's L_d and its analytic
 gradient at both levels (dcay^-1 formulas, docs/theory.md §9); the step solves, in position-momentum form,
 
     pi_n + D1 L_d(q_n, q_{n+1}) + f^-_n = 0,       pi_{n+1} = D2 L_d(q_n, q_{n+1}) + f^+_n,
@@ -381,7 +381,7 @@ class RodPart:
 
     def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2)):
         """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
-        element gradients (``_k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
+        element gradients (``k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
         range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros)."""
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
         D1 = np.empty((self.N + 1, 6))
@@ -594,7 +594,7 @@ def origin_shift(x):
 
 
 @njit(cache=True, inline="always")
-def _k_cay(w0, w1, w2, out):
+def k_cay(w0, w1, w2, out):
     c = 4.0 / (4.0 + w0 * w0 + w1 * w1 + w2 * w2)
     out[0, 0] = 1.0 - 0.5 * c * (w1 * w1 + w2 * w2)
     out[1, 1] = 1.0 - 0.5 * c * (w0 * w0 + w2 * w2)
@@ -679,7 +679,7 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
     # the unperturbed level and cay(xi) are the same for every batch: compute them once
     Cxs = np.empty((N + 1, 3, 3), dtype=np.complex128)
     for j in range(N + 1):
-        _k_cay(xi[j, 0], xi[j, 1], xi[j, 2], Cxs[j])
+        k_cay(xi[j, 0], xi[j, 1], xi[j, 2], Cxs[j])
         if level == 0:
             _k_mm(Lam_n[j], Cxs[j], L1[j])
             for i in range(3):
@@ -696,7 +696,7 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
     for b in range(B):
         for j in range(N + 1):
             Cx = Cxs[j]
-            _k_cay(sig[b, j, 0], sig[b, j, 1], sig[b, j, 2], C)
+            k_cay(sig[b, j, 0], sig[b, j, 1], sig[b, j, 2], C)
             if level == 0:
                 _k_mm(Lam_n[j], C, Ln[j])
                 _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
@@ -762,7 +762,7 @@ def _k_dcinvT(w, v, s, out):
 
 
 @njit(cache=True, inline="always")
-def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
+def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
     """Discrete Lagrangian of one element (returned) and its exact gradients.
 
     ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
@@ -772,8 +772,8 @@ def _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, 
     ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
     """
     Ca, Cb, L1a, L1b, T = M[0], M[1], M[2], M[3], M[4]
-    _k_cay(xia[0], xia[1], xia[2], Ca)
-    _k_cay(xib[0], xib[1], xib[2], Cb)
+    k_cay(xia[0], xia[1], xia[2], Ca)
+    k_cay(xib[0], xib[1], xib[2], Cb)
     _k_mm(L0a, Ca, L1a)
     _k_mm(L0b, Cb, L1b)
     om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
@@ -868,7 +868,7 @@ def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r
     D2[:] = 0.0
     L = 0.0
     for e in range(N):
-        L += _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
+        L += k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
                         xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev_lo, lev_hi, e1, e2, M, V)
         for i in range(6):
             D1[e, i] += e1[i]
@@ -884,14 +884,14 @@ def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r
 
 @njit(cache=True)
 def _element_scratch():
-    """Complex work arrays of one :func:`_k_element` call: (M, V, D1, D2, Lambda_a, Lambda_b)."""
+    """Complex work arrays of one :func:`k_element` call: (M, V, D1, D2, Lambda_a, Lambda_b)."""
     c = np.complex128
     return (np.empty((5, 3, 3), c), np.empty((16, 3), c), np.empty(12, c), np.empty(12, c),
             np.empty((3, 3), c), np.empty((3, 3), c))
 
 
 @njit(cache=True, inline="always")
-def _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb):
+def k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb):
     """Element e's level-(n+1) chart in the step unknowns u = (b_a, xi_a, b_b, xi_b), column k moved by i eps:
     xi of its two nodes into xa, xb and r_1 into qa, qb (a b-column moves r_1 along the level-n frame's
     column d, since r_1 = r_n + Lambda_n b).  Shared by the Newton blocks of every rod kernel."""
@@ -914,7 +914,7 @@ def _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb):
 
 
 @njit(cache=True, inline="always")
-def _k_body_rows(Lam_n, e, col, out):
+def k_body_rows(Lam_n, e, col, out):
     """out = an element's 12 derivative rows ``col`` with each node's translational rows rotated into its
     level-n body frame (the rows of the step residual)."""
     for i in range(3):
@@ -943,7 +943,7 @@ def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
     else:  # sigma of node a (k < 6) or b
         w[:] = 0.0
         w[d] = 1j * eps
-        _k_cay(w[0], w[1], w[2], C)
+        k_cay(w[0], w[1], w[2], C)
         node = e if k < 6 else e + 1
         for i in range(3):
             for m in range(3):
@@ -982,11 +982,11 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
                 for i in range(12):
                     blocks[e, i, k] = 0.0
                 continue
-            _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
-            _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
+            k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
+            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
             for i in range(12):
                 col[i] = e1[i].imag * inv
-            _k_body_rows(Lam_n, e, col, blocks[e, :, k])
+            k_body_rows(Lam_n, e, col, blocks[e, :, k])
 
 
 @njit(cache=True)
@@ -1011,18 +1011,18 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
                     blocks[e, i, k] = 0.0
                 continue
             _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
-            _k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
+            k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
+def k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
     """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
     ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
-    _k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
+    k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
     _k_mm(Lam_n[e], C, A)
-    _k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
+    k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
     _k_mm(Lam_n[e + 1], C, B)
     gg = 0.0
     for i in range(3):

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .rod import _k_body_rows, _k_cay, _k_chart_column, _k_config_column, _k_mm
+from .rod import k_body_rows, k_cay, k_chart_column, _k_config_column, _k_mm
 
 __all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -159,9 +159,9 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_l
                 for i in range(3):
                     row_blocks[e, i, k] = 0.0
                 continue
-            _k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
-            _k_cay(xa[0], xa[1], xa[2], Ca)
-            _k_cay(xb[0], xb[1], xb[2], Cb)
+            k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
+            k_cay(xa[0], xa[1], xa[2], Ca)
+            k_cay(xb[0], xb[1], xb[2], Cb)
             _k_mm(La0, Ca, La1)
             _k_mm(Lb0, Cb, Lb1)
             if at_levels:  # the row reads level n+1 alone; the level-n force does not depend on u
@@ -172,13 +172,13 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_l
                 _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
                 for i in range(12):
                     col[i] = e1[i].imag * inv
-                _k_body_rows(Lam_n, e, col, blocks[e, :, k])
+                k_body_rows(Lam_n, e, col, blocks[e, :, k])
             for i in range(3):
                 row_blocks[e, i, k] = dl[i].imag * inv
         # lam columns: D1 is linear in lam, so its derivative is D1 at lam = e_i (no perturbation: eps = 0)
-        _k_chart_column(Lam_n, xi, r_1, e, 0, 0.0, xa, xb, qa, qb)
-        _k_cay(xa[0], xa[1], xa[2], Ca)
-        _k_cay(xb[0], xb[1], xb[2], Cb)
+        k_chart_column(Lam_n, xi, r_1, e, 0, 0.0, xa, xb, qa, qb)
+        k_cay(xa[0], xa[1], xa[2], Ca)
+        k_cay(xb[0], xb[1], xb[2], Cb)
         _k_mm(La0, Ca, La1)
         _k_mm(Lb0, Cb, Lb1)
         for j in range(3):
@@ -192,7 +192,7 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_l
                 _k_constraint_element(h, ds, La0, Lb0, ra0, rb0, La1, Lb1, qa, qb, lc, ncomp, e1, e2, dl, 0, 1)
                 for i in range(12):
                     col[i] = e1[i].real
-            _k_body_rows(Lam_n, e, col, lam_blocks[e, :, j])
+            k_body_rows(Lam_n, e, col, lam_blocks[e, :, j])
 
 
 def constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, levels=(0, 2)):

@@ -47,7 +47,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from .forces import Declaration, Force
-from ..lattice.parcels import _local_gradient, _local_hessian, parcel_derivatives, parcel_volumes
+from ..lattice.parcels import k_parcel_gradient, k_parcel_hessian, parcel_derivatives, parcel_volumes
 
 __all__ = ["ShockCapturing", "SwellingShockCapturing", "make_shock_capturing", "avf_volume_gradients",
            "mean_value_pressure", "viscous_pressure", "heated_entropy"]
@@ -478,7 +478,7 @@ def _avf_volume(s0, s1, R0, R1, ds, periodic, nlab, X, want_H, gT, gW,
                 eb, tb = _elem(b0 + tau * (b1 - b0), ds, N, periodic)
                 m = 2 + eb - ea + 2
                 gl = gt[:m]
-                r0, r1, ra0, rb0, ra1, rb1 = _local_gradient(dummy, Rl, ds, False, k, ea - lo, ta, eb - lo, tb, gl)
+                r0, r1, ra0, rb0, ra1, rb1 = k_parcel_gradient(dummy, Rl, ds, False, k, ea - lo, ta, eb - lo, tb, gl)
                 off = ea - lo  # local node of gl[2]
                 G[0] += w * gl[0]
                 G[1] += w * gl[1]
@@ -486,7 +486,7 @@ def _avf_volume(s0, s1, R0, R1, ds, periodic, nlab, X, want_H, gT, gW,
                     G[off + i] += w * gl[i]
                 if want_H:
                     Hl = Ht[:m, :m]
-                    _local_hessian(ds, ea - lo, ta, eb - lo, tb, r0, r1, ra0, rb0, ra1, rb1, Hl)
+                    k_parcel_hessian(ds, ea - lo, ta, eb - lo, tb, r0, r1, ra0, rb0, ra1, rb1, Hl)
                     wt = w * tau
                     for i in range(m):
                         ii = i if i < 2 else off + i

@@ -23,9 +23,9 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-from ..lattice.centreline import _k_centreline_weights
-from .rod import _k_element
-from .rod import _k_measure
+from ..lattice.centreline import k_centreline_weights
+from .rod import k_element
+from .rod import k_measure
 
 __all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements",
            "RodConstraint", "CoupledFluid"]
@@ -71,7 +71,7 @@ def _embed(block, offset, nz):
 
 @njit(cache=True)
 def _k_rod_gradient_centred(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
-    """D1, D2 (N+1, 6) of the rod's element kernels (:func:`varint.terms.rod._k_element`, as ``varint.terms.rod._k_gradient``) with
+    """D1, D2 (N+1, 6) of the rod's element kernels (:func:`varint.terms.rod.k_element`, as ``varint.terms.rod._k_gradient``) with
     each element evaluated in coordinates centred on its first node: r_a^n = 0, r_b^n = r_b^n - r_a^n, r_a^{n+1} = dr_a,
     r_b^{n+1} = (r_b^n - r_a^n) + dr_b, dr the increments Lambda^n b (docs/theory.md §9, "Momenta to round-off": the
     gradients depend on positions only through differences; the velocities are then the increments themselves, not
@@ -97,9 +97,9 @@ def _k_rod_gradient_centred(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n
             rb0[i] = r_n[e + 1, i] - r_n[e, i]
             rb1[i] = rb0[i] + dr[e + 1, i]
             dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
-        _k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1], dr[e],
+        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1], dr[e],
                    rb1, lev_lo, lev_hi, e1, e2, M, V)
-        c = h * ds * (_k_measure(e, ds, Lam_n, r_n, xi, dr, M[0], M[1], M[2]) if paper else 1.0)
+        c = h * ds * (k_measure(e, ds, Lam_n, r_n, xi, dr, M[0], M[1], M[2]) if paper else 1.0)
         for i in range(3):
             k = c * 0.5 * rhoA * dlt[i] * ih2
             e1[6 + i] -= k
@@ -150,8 +150,8 @@ def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, r
     nodes1 = np.empty((m, 4), np.int64)
     N0, dN0, d2N = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
     N1, dN1 = np.empty((m, 4)), np.empty((m, 4))
-    _k_centreline_weights(s0, n, ds, periodic, nodes0, N0, dN0, d2N)
-    _k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
+    k_centreline_weights(s0, n, ds, periodic, nodes0, N0, dN0, d2N)
+    k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
     D = np.empty(3)
     c = np.empty(3)
     for q in range(m):
@@ -293,7 +293,7 @@ class TubeTrapezoidalPotential:
 
 
 class RodElements:
-    """The rod's element kernels (varint.terms.rod ``_k_element``): kinetic, elastic, gravity and dead tip force.
+    """The rod's element kernels (varint.terms.rod ``k_element``): kinetic, elastic, gravity and dead tip force.
 
     One term because one element kernel computes them together, exactly (docs/theory.md §9); the
     declarations of its pieces are :meth:`varint.terms.rod.RodPart.declarations`.  Its Newton block has the
