@@ -1,7 +1,7 @@
 """Cost of the rod's Newton Jacobian and of a rod step: exact element Jacobian against the 0.1
 finite-difference one, side by side in one run (docs/performance.md, "Exact rod Jacobian").
 
-* one Jacobian: ``sim.scheme.jacobian`` (the rod term's element blocks by complex step of the analytic
+* one Jacobian: ``sim.stepper.action.jacobian`` (the rod term's element blocks by complex step of the analytic
   element gradient, assembled) against :func:`jacobian_fd` (colour-grouped central differences of
   the residual, the 0.1 path, rebuilt here with ``varint.terms.rod.banded_jacobian``), and one residual (analytic gradient against the complex step of the
   whole L_d), at 10 and 100 elements, planar and 3D;
@@ -58,11 +58,11 @@ def old_path(sim):
     """Turn a simulation into the 0.1 one: complex-step residual, finite-difference Jacobian.
 
     The rod term reads ``model.rod.derivative`` (an instance attribute overrides the method) and the
-    stepper's Newton calls ``sim.scheme.jacobian(q0, z)``; the residual is p_n + D1 L_d + f^-, so its
+    stepper's Newton calls ``sim.stepper.action.jacobian(q0, z)``; the residual is p_n + D1 L_d + f^-, so its
     Jacobian does not depend on p_n, which is read from the state the step starts from, as 0.1 did."""
     rod = sim.model.rod
     rod.derivative = rod.derivative_complex_step
-    sim.scheme.jacobian = lambda q0, z: jacobian_fd(sim.scheme, q0, sim.state.p, z)
+    sim.stepper.action.jacobian = lambda q0, z: jacobian_fd(sim.stepper.action, q0, sim.state.p, z)
     return sim
 
 
@@ -80,8 +80,8 @@ def jacobian_table():
         for name, scene in scenes(n_el).items():
             sim = Simulation(build_model(scene))
             sim.step()
-            step, q0, p0 = sim.scheme, sim.state.q, sim.state.p
-            z = sim.predictor()  # the Newton start of the next step (last step's b, xi)
+            step, q0, p0 = sim.stepper.action, sim.state.q, sim.state.p
+            z = sim.stepper.predictor()  # the Newton start of the next step (last step's b, xi)
             step.jacobian(q0, z), jacobian_fd(step, q0, p0, z)  # compile
             t_new = best_of(lambda: step.jacobian(q0, z))
             t_old = best_of(lambda: jacobian_fd(step, q0, p0, z))

@@ -66,7 +66,7 @@ def _blocks(n):
 
 def run_old(model, n):
     sim = Simulation(model)
-    sim._fast = None  # the general path (Step + varint.schemes.newton), which Simulation used for the rod before the hook
+    sim.stepper.compiled = None  # the general path (Step + varint.schemes.newton), which Simulation used for the rod before the hook
     sim.step()  # compiled kernels, first Jacobian
     its = jacs = 0
     best = math.inf

@@ -61,7 +61,7 @@ def main():
         dt = 0.5 * largest_stable_dt(E, w1, n_el=n_el, steps=300 if args.quick else 3000)
         pe = pyelastica_stepper(E, dt, n_el)
         old = Simulation(cantilever(n_el, h, 2))
-        old._fast = None  # the general path
+        old.stepper.compiled = None  # the general path
         old.step()
         fast = FastRodStep(cantilever(n_el, h, 2))
         state = [fast.step(Simulation(fast.model).state)]

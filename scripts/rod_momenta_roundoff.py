@@ -33,8 +33,8 @@ def run(dim, steps, h, polish=True, case=None):
         kw = dict(list(CASES.values())[case], dim=dim)
     model = make(h=h, **kw)
     sim = Simulation(model, h=h)
-    if sim._fast is not None and not polish:
-        sim._fast.ci[10] = 0
+    if sim.stepper.compiled is not None and not polish:
+        sim.stepper.compiled.ci[10] = 0
     m0 = sim.monitors()
     P0, J0, E0 = np.asarray(m0["linear_momentum"]), np.asarray(m0["angular_momentum"]), m0["energy"]
     scale = np.linalg.norm(J0)

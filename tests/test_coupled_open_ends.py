@@ -176,12 +176,12 @@ def test_what_open_ends_on_a_rod_cannot_run_is_refused_in_one_line():
     """A pressure inlet or a pressurised outlet on the coupled tube: one line each, before the first step."""
     scene = pipe(constraint="none")
     scene.fluid.ends["outflow_pressure"] = 2.0e5
-    with pytest.raises(SolverError, match="outflow_pressure") as e:
+    with pytest.raises(SceneError, match="outflow_pressure") as e:
         Simulation(build_model(scene))
     assert "\n" not in str(e.value)
     scene = pipe(constraint="none")
     scene.fluid.ends["inflow"] = "pressure"
-    with pytest.raises(SolverError, match="fluid.ends") as e:
+    with pytest.raises(SceneError, match="fluid.ends") as e:
         Simulation(build_model(scene))
     assert "\n" not in str(e.value)
 

@@ -104,7 +104,7 @@ def test_newton_block_is_the_derivative_of_the_force(case):
     many parcels in compression (labels, rod positions and frames all perturbed)."""
     model = build(coupled_sod(M=12, nodes=7, **CASES[case]))
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     force = model.tube.shock_capturing
     rng = np.random.default_rng(3)
     q0 = sim.state.q
@@ -119,9 +119,9 @@ def test_newton_block_is_the_derivative_of_the_force(case):
     Jfd = np.empty_like(J)
     for i in range(model.nz):
         e = np.zeros(model.nz)
-        e[i] = 1e-6 * sim.scale[i]
+        e[i] = 1e-6 * sim.stepper.scale[i]
         Jfd[:, i] = (_force_residual(step, force, q0, z + e) - _force_residual(step, force, q0, z - e)) / (2 * e[i])
-    Js, Jfds = J * sim.scale[None, :], Jfd * sim.scale[None, :]
+    Js, Jfds = J * sim.stepper.scale[None, :], Jfd * sim.stepper.scale[None, :]
     ref = np.abs(Jfds).max()
     assert ref > 0
     assert np.allclose(Js, Jfds, rtol=0, atol=2e-6 * ref), np.abs(Js - Jfds).max() / ref
@@ -141,7 +141,7 @@ def test_force_is_frame_indifferent():
     (rotated by 0.3 rad and translated) from level n to n+1 is not viscous at all: V^{n+1} = V^n, Q = 0."""
     model = build(coupled_sod(M=12, nodes=7, initial=BENT_SPINNING))
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     force = model.tube.shock_capturing
     rng = np.random.default_rng(5)
     q0 = sim.state.q

@@ -109,7 +109,7 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
     D_mu L_d(q_2, ., mu) = h (V(q_2) - V0), checked against differences of L_d(q_2, q_2, lam) in lam."""
     model = coupled_scene(**CASES[case])
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     rng = np.random.default_rng(5)
     q0 = sim.state.q
     q1 = _move(model, q0, rng, 0.02)
@@ -188,7 +188,7 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
 def test_newton_jacobian_is_the_derivative_of_the_residual(case):
     model = coupled_scene(**CASES[case])
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     rng = np.random.default_rng(8)
     q0, p0 = sim.state.q, sim.state.p
     z = step.unknowns(q0, _move(model, q0, rng, 0.02), _lam(model, rng, 0.01))
@@ -196,11 +196,11 @@ def test_newton_jacobian_is_the_derivative_of_the_residual(case):
     Jfd = np.empty_like(J)
     for i in range(model.nz):
         e = np.zeros(model.nz)
-        e[i] = 1e-6 * sim.scale[i]
+        e[i] = 1e-6 * sim.stepper.scale[i]
         Jfd[:, i] = (step.residual(q0, p0, z + e) - step.residual(q0, p0, z - e)) / (2 * e[i])
     # row block by row block (rows of different units), with each column scaled by its unknown's scale (the
     # change of the residual per scaled change of the unknown), to 1e-6 of the row block's largest entry
-    Js, Jfds = J * sim.scale[None, :], Jfd * sim.scale[None, :]
+    Js, Jfds = J * sim.stepper.scale[None, :], Jfd * sim.stepper.scale[None, :]
     for rname, ridx in model.layout.items():
         rows = np.arange(model.nz)[ridx]
         ref = np.abs(Jfds[rows]).max()
@@ -370,7 +370,7 @@ def test_closed_form_momentum_balances_are_the_momentum_map_of_the_residual_and_
     reduces them by orders of magnitude and leaves every other row of the residual unchanged but for round-off."""
     model = coupled_scene(**CASES[case])
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     rng = np.random.default_rng(3)
     sim.step()
     q0, p0 = sim.state.q, sim.state.p

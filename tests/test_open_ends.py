@@ -15,7 +15,7 @@ import pytest
 
 import varint
 from varint import parse_scene, run_scene
-from varint.errors import SolverError
+from varint.errors import SceneError, SolverError
 from varint.lattice.parcels import parcel_volumes
 from varint.run.io import read_run
 
@@ -209,7 +209,7 @@ def test_run_file_layout_fixed_slots_nan_and_mask(tmp_path):
 ])
 def test_what_is_not_available_is_one_line(extra, key):
     model = varint.build_model(parse_scene(scene_text(extra=extra)))
-    with pytest.raises(SolverError) as e:
+    with pytest.raises(SceneError) as e:
         varint.make_simulation(model)
     assert str(e.value).startswith(key) and "\n" not in str(e.value)
 

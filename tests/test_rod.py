@@ -130,7 +130,7 @@ def test_free_rod_far_from_the_origin_keeps_momenta_at_round_off():
         model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF, gravity=list(g),
                                       initial=dict(SPIN, velocity=[300.0, -200.0, 100.0])))
         sim = Simulation(model)
-        sim.floating_origin = floating
+        sim.stepper.floating_origin = floating
         M = float(np.sum(model.rod.section.rhoA * model.rod.w))
         sim.step()
         m1 = sim.monitors()
@@ -195,7 +195,7 @@ def test_planar_free_rod_is_free():
     floating origin, like the 3D one."""
     planar = build_model(rod_scene(nodes=11, dimension=2, initial={"velocity": [1.0, 0.5, 0.0]}))
     spatial = build_model(rod_scene(nodes=11, dimension=3, initial={"velocity": [1.0, 0.5, 0.0]}))
-    assert planar.rod.free and spatial.rod.free and Simulation(planar).floating_origin
+    assert planar.rod.free and spatial.rod.free and Simulation(planar).stepper.floating_origin
     f2 = [m["frequency"] for m in rod_modes(planar, count=8)]
     f3 = [m["frequency"] for m in rod_modes(spatial, count=30)]
     elastic = [f for f in f2 if f > 1.0]

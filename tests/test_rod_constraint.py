@@ -58,7 +58,7 @@ def test_residual_is_the_gradient_of_the_action_and_the_jacobian_its_derivative(
     model = constrained(rod_scene(nodes=7, h=1e-2, **CASES[case]))
     rod, N = model.rod, model.N
     sim = Simulation(model)
-    step = sim.scheme
+    step = sim.stepper.action
     rng = np.random.default_rng(3)
     q0 = sim.state.q
     q1 = _move(model, q0, rng, 0.05)
@@ -113,10 +113,10 @@ def test_residual_is_the_gradient_of_the_action_and_the_jacobian_its_derivative(
     Jfd = np.empty_like(J)
     for i in range(model.nz):
         e = np.zeros(model.nz)
-        e[i] = 1e-6 * sim.scale[i]
+        e[i] = 1e-6 * sim.stepper.scale[i]
         Jfd[:, i] = (step.residual(q1, p1, z12 + e) - step.residual(q1, p1, z12 - e)) / (2 * e[i])
     for rows in (model.rod_z, model.rod_lam_z):
-        A, B = J[rows] * sim.scale, Jfd[rows] * sim.scale
+        A, B = J[rows] * sim.stepper.scale, Jfd[rows] * sim.stepper.scale
         assert np.allclose(A, B, rtol=0, atol=1e-6 * np.abs(B).max()), np.abs(A - B).max() / np.abs(B).max()
 
 

@@ -16,7 +16,7 @@ from varint import Simulation, build_model, parse_scene
 from varint.errors import SceneError
 from varint.lattice.lie import cay
 from varint.terms.rod import unpack_level
-from varint.schemes.em_rod import RodEMStep, discrete_gradient, potential, strains, supports
+from varint.schemes.em_rod import RodEMStep, discrete_gradient, potential, strains
 
 
 def _scene(n=8, sec=None, curvature=(0.0, 1.0, 2.0), spin=(0.0, 0.0, 2.0), h=5e-3, scheme="midpoint", gravity=None, **extra):
@@ -255,12 +255,12 @@ def test_scene_key_runs_and_refuses():
     assert np.max(np.abs(mo["angular_momentum"] - m0["angular_momentum"])) < 1e-13 * np.linalg.norm(m0["angular_momentum"])
     for bad in (dict(measure="paper"),):
         with pytest.raises(SceneError, match=r"time\.scheme: 'energy-momentum'"):
-            _scene(n=4, scheme="energy-momentum", **bad)
+            Simulation(_scene(n=4, scheme="energy-momentum", **bad))
     examples = Path(__file__).resolve().parent.parent / "examples"
     for name in ("liquid_pulse_tube_law.toml", "garden_hose.toml"):  # a tube without a rod; a rod with a fluid
         text = (examples / name).read_text().replace("[time]\n", '[time]\nscheme = "energy-momentum"\n')
         with pytest.raises(SceneError, match=r"time\.scheme: 'energy-momentum'"):
-            build_model(parse_scene(text))
+            Simulation(build_model(parse_scene(text)))
 
 
 @pytest.mark.parametrize("constraint", ["none", "inextensible_unshearable"])

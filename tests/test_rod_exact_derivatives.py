@@ -91,9 +91,9 @@ def test_assembled_jacobian_equals_finite_differences_of_the_residual(case):
     for _ in range(3):
         sim.step()
     N = model.N
-    step, q0, p0 = sim.scheme, sim.state.q, sim.state.p
-    z = sim.predictor()
-    z = z + 0.05 * sim.scale * np.random.default_rng(3).standard_normal(z.shape)
+    step, q0, p0 = sim.stepper.action, sim.state.q, sim.state.p
+    z = sim.stepper.predictor()
+    z = z + 0.05 * sim.stepper.scale * np.random.default_rng(3).standard_normal(z.shape)
     J = step.jacobian(q0, z).toarray()
     mask = model.rod.mask
 

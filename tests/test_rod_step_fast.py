@@ -221,7 +221,7 @@ def _compare_runs(model, steps, early_stop=True, predictor="constant", rate_refr
     refresh rate and ``fd_refresh=False``, the iteration counts differ by the stopping rule only)."""
     sim = Simulation(model)
     ref = Simulation(model)
-    ref._fast = None  # the stepper's own path (Step + varint.schemes.newton), which Simulation takes for all but the rod alone
+    ref.stepper.compiled = None  # the stepper's own path (Step + varint.schemes.newton), which Simulation takes for all but the rod alone
     fast = FastRodStep(model, sim.h, early_stop=early_stop, predictor=predictor, rate_refresh=rate_refresh,
                        fd_refresh=fd_refresh)
     st = sim.state.copy()
@@ -333,11 +333,11 @@ def test_a_failed_chord_iteration_falls_back_to_the_steppers_damped_newton():
 
 def test_the_floating_origin_can_be_switched_off_as_on_simulation():
     """A rod thrown far: with the floating origin the positions stay O(L) and the origin holds the travel; without it
-    (Simulation.floating_origin = False) the origin stays zero; both are the stepper's levels."""
+    (sim.stepper.floating_origin = False) the origin stays zero; both are the stepper's levels."""
     model = build_model(rod_scene(nodes=11, h=1e-2, section=STIFF, initial=dict(SPIN, velocity=[300.0, -200.0, 100.0])))
     for floating in (True, False):
         ref = Simulation(model)
-        ref.floating_origin = floating
+        ref.stepper.floating_origin = floating
         fast = FastRodStep(model, ref.h)
         fast.floating_origin = floating
         assert fast.floating_origin == floating
@@ -422,8 +422,8 @@ def test_momenta_of_the_hard_free_arc_stay_at_round_off():
     out = {}
     for polish in (1, 0):
         sim = Simulation(model)
-        assert sim._fast is not None and sim._fast.ci[10] == 1  # the compiled step, polishing a free rod
-        sim._fast.ci[10] = polish
+        assert sim.stepper.compiled is not None and sim.stepper.compiled.ci[10] == 1  # the compiled step, polishing a free rod
+        sim.stepper.compiled.ci[10] = polish
         out[polish] = momentum_drift(sim, 1000)
     assert out[1][0] < 4e-14 and out[1][1] < 2e-14, out
     assert out[0][0] > 4e-14 or out[0][1] > 2e-14, out  # the test can fail: without the polish it does

@@ -435,24 +435,32 @@ def test_a_scene_file_runs_writes_hdf5_and_resumes_bit_for_bit(tmp_path):
     assert np.all(np.isfinite(a["fields"]["fluid/pressure"]))
 
 
-def test_varint_check_reports_the_step_s_own_unknowns():
-    """`varint check` (Model.describe) counts what the energy-momentum step solves for, not the midpoint's layout."""
+def test_varint_check_reports_the_step_s_own_unknowns(tmp_path, capsys):
+    """`varint check` counts what the energy-momentum step solves for (the scheme's ``unknowns``), not the midpoint's
+    layout."""
+    import json
+
+    from varint.cli import main
+
     liquid = dict(LIQUID, parcels=6)
     for text in (_scene_text(), _scene_text(**{"fluid": liquid})):
-        model = build_model(parse_scene(text))
-        d = model.describe()
-        assert d["unknowns_total"] == TubeEMStep(model, 2e-3).nz
+        path = tmp_path / "s.toml"
+        path.write_text(text)
+        assert main(["check", str(path), "--json"]) == 0
+        d = json.loads(capsys.readouterr().out)
+        assert d["unknowns_total"] == TubeEMStep(build_model(parse_scene(text)), 2e-3).nz
         assert {"X", "s", "label_constraint", "directors"} <= set(d["unknowns"])
+        assert d["schemes"]["energy-momentum"] == "runs" and d["schemes"]["trapezoidal"].startswith("time.scheme")
 
 
 @pytest.mark.parametrize("change, words", [
     ({"wall.model": "quasistatic"}, "wall.model = 'dynamic'"),
-    ({"rod.ends": {"s0": "periodic", "sL": "periodic"}, "fluid.ends": {"s0": "periodic", "sL": "periodic"}},
-     "closed fluid ends"),
+    ({"rod.ends": {"s0": "periodic", "sL": "periodic"}, "rod.initial": {"velocity": [0.0, 0.1, 0.0]},
+      "fluid.ends": {"s0": "periodic", "sL": "periodic"}}, "closed fluid ends"),
 ])
 def test_what_is_not_covered_is_refused_in_one_line(change, words):
     with pytest.raises(SceneError) as exc:
-        build_model(parse_scene(_scene_text(**change)))
+        Simulation(build_model(parse_scene(_scene_text(**change))))
     assert any(line.startswith("time.scheme") and words in line for line in str(exc.value).splitlines()), str(exc.value)
 
 

@@ -95,10 +95,18 @@ def _ends_text(scene):
 def cmd_check(args):
     from .model.model import build_model
 
+    from .schemes.registry import check_supported, refusals
+
     scene = _load_scene(args.scene)
     model = build_model(scene)
+    scheme = check_supported(model)  # the scene's scheme must step its model: one line with the reason otherwise
     d = {"title": scene.title, **model.describe(),
          "time": dict(scene.time), "environment": {k: v for k, v in scene.environment.items()}}
+    own = scheme.unknowns(model)
+    if own is not None:  # a scheme that solves for its own unknowns (energy-momentum: docs/theory.md §12a-§12b)
+        d["unknowns"], d["inertial_unknowns"], d["algebraic_unknowns"] = own
+        d["unknowns_total"] = d["inertial_unknowns"] + d["algebraic_unknowns"]
+    d["schemes"] = {name: "runs" if why is None else why for name, why in refusals(model).items()}
     if args.json:
         print(json.dumps(_jsonable(d), indent=2))
         return 0
@@ -132,6 +140,7 @@ def cmd_check(args):
         print("  fluid: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["fluid"].items()))
     t = scene.time
     print(f"  time: scheme = {t.scheme}, step = {t.step:g} s, end = {t.end:g} s, newton_tol = {t.newton_tol:g}")
+    print("  schemes: " + "; ".join(f"{name}: {what}" for name, what in d["schemes"].items()))
     return 0
 
 

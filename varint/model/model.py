@@ -45,7 +45,6 @@ from ..errors import SceneError
 from ..terms.forces import Declaration, derive_invariants
 from ..terms.rod import RodPart, pack_level
 from .statics import static_equilibrium
-from ..terms.step import (CoupledFluid, RodConstraint, RodElements, TubeKinetic, TubeMidpointPotential, TubeTrapezoidalPotential)
 from ..terms.tube import TubePart
 
 __all__ = ["Model", "build_model"]
@@ -84,7 +83,6 @@ class Model:
                 f.bind(self)
         #: the evolving data at t = 0 (a force heats them in place as a run goes: every new run starts from these)
         self.initial_data = self.state_data()
-        self.step_terms()  # a scheme the blocks cannot use is a scene error, reported before anything runs
 
     # -- layout -----------------------------------------------------------------------
 
@@ -119,26 +117,6 @@ class Model:
     @property
     def unknown_names(self):
         return list(self.layout)
-
-    def step_terms(self, scheme=None):
-        """The terms of L_d for ``scheme`` (default: the scene's ``time.scheme``), kinetic ones included."""
-        scheme = scheme or self.scheme
-        if scheme == "energy-momentum":  # the rod alone, stepped by varint/schemes/em_rod.py: these terms only lay out the state
-            scheme = "midpoint"
-        terms = []
-        if self.tube is not None:
-            terms.append(TubeKinetic(self.tube, self.tube_z.start, self.nz))
-            pot = {"midpoint": TubeMidpointPotential, "trapezoidal": TubeTrapezoidalPotential}[scheme]
-            terms.append(pot(self.tube, self.tube_z.start, self.nz))
-        if self.rod is not None:
-            if scheme != "midpoint":
-                raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")
-            terms.append(RodElements(self.rod, self.rod_z.start, self.nz))
-            if self.rod.constrained:
-                terms.append(RodConstraint(self))
-        if self.coupled:
-            terms.append(CoupledFluid(self))
-        return terms
 
     def state_data(self):
         """Data that forces change as the run goes (e.g. the parcels' entropy under a heating viscosity):
@@ -300,32 +278,8 @@ class Model:
             for k in ("wall", "fluid"):
                 if k in td:
                     d[k] = td[k]
-        if self.scheme == "energy-momentum":
-            # the energy-momentum step solves for its own unknowns (docs/theory.md §12a-§12b), not the midpoint's layout
-            d["unknowns"], d["inertial_unknowns"], d["algebraic_unknowns"] = energy_momentum_unknowns(self)
-            d["unknowns_total"] = d["inertial_unknowns"] + d["algebraic_unknowns"]
         d["scheme"] = self.scheme
         return d
-
-
-def energy_momentum_unknowns(model):
-    """The energy-momentum step's unknowns per block (varint/schemes/em_rod.py, varint/schemes/em_tube.py): ``(counts, inertial,
-    algebraic)``.  Supports keep their rows (as trivial equations), so every node counts."""
-    rod, t = model.rod, model.tube
-    n1 = rod.N + 1
-    inertial = {"r": 3 * n1, "directors": 9 * n1}
-    algebraic = {"orthonormality": 6 * n1}
-    if rod.constrained:
-        algebraic["n"] = 3 * rod.N  # the element forces that hold Gamma = chi
-    if model.coupled:
-        if t.has_wall and t.wall_dynamic:
-            inertial["R"] = n1
-        inertial["s"] = t.M - 1  # interior labels: the reference coordinate (no inertia of its own) and the position
-        inertial["X"] = 3 * (t.M - 1)
-        algebraic["label_constraint"] = 3 * (t.M - 1)
-        if t.incompressible:
-            algebraic["mu"] = t.M
-    return {**inertial, **algebraic}, sum(inertial.values()), sum(algebraic.values())
 
 
 def build_model(scene):

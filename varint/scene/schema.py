@@ -463,9 +463,6 @@ class _Validator:
             self.bad("(scene)", "no effects: add a [rod], [fluid] and/or [wall] section")
         if sc.rod is not None:
             self.rod_checks(sc)
-        elif sc.time.scheme == "energy-momentum":
-            self.bad("time.scheme", "'energy-momentum' needs a [rod] in this version (the rod alone, or the rod with [fluid] "
-                     "and [wall]: the coupled tube)")
         if sc.tube.area_table is not None:
             self.check_area_table(sc.tube.area_table, L)
             if sc.wall is not None:
@@ -476,11 +473,6 @@ class _Validator:
             self.wall_checks(sc.wall, R0, L)
         if sc.fluid is not None:
             self.fluid_checks(sc.fluid, L, sc)
-        algebraic = (sc.fluid is not None and sc.fluid.model == "incompressible") or (
-            sc.wall is not None and sc.wall.model == "quasistatic")
-        if sc.time.scheme == "trapezoidal" and algebraic:
-            self.bad("time.scheme", "'trapezoidal' needs every unknown to carry inertia; an incompressible fluid or a "
-                     "quasistatic wall has multipliers/algebraic unknowns: use 'midpoint'")
         env = sc.environment
         if env.external_pressure is None:
             env["external_pressure"] = sc.fluid.pressure if (sc.fluid is not None and sc.fluid.pressure is not None) else 0.0
@@ -514,8 +506,6 @@ class _Validator:
         elif sc.wall is not None and sc.wall.model != "dynamic":
             self.bad(kp, "needs wall.model = 'dynamic' (a quasistatic wall's radii are half-level unknowns, "
                          "for which the energy balance is not exact)")
-        elif sc.time.scheme != "midpoint":
-            self.bad("time.scheme", "[shock_capturing] needs 'midpoint' (its viscous pressure is implicit)")
 
     def traveling_shock_checks(self, sc):
         """``[initial.traveling_shock]``: a straight tube with a linear wall and an ideal gas at rest, closed ends.
@@ -593,19 +583,6 @@ class _Validator:
             self.bad("tube.area_table", "not available with a [rod] (the coupled tube has a uniform rigid radius or a [wall])")
         if sc.initial is not None and sc.initial.traveling_shock is not None:
             self.bad("initial.traveling_shock", "needs a straight fixed tube: not available with a [rod]")
-        if sc.time.scheme == "trapezoidal":
-            self.bad("time.scheme", "the rod is integrated by the midpoint Lie-group scheme or 'energy-momentum'; not 'trapezoidal'")
-        if sc.time.scheme == "energy-momentum":  # varint/schemes/em_rod.py, varint/schemes/em_tube.py, docs/theory.md §12a-§12b
-            if sc.wall is not None and sc.wall.model == "quasistatic":
-                self.bad("time.scheme", "'energy-momentum' needs wall.model = 'dynamic' (a quasistatic wall is not covered in this version)")
-            elif sc.fluid is not None and sc.fluid.ends.s0 != "closed":
-                self.bad("time.scheme", "'energy-momentum' covers closed fluid ends only in this version (fluid.ends)")
-            elif sc.shock_capturing is not None:
-                self.bad("time.scheme", "'energy-momentum' does not cover [shock_capturing] in this version")
-            elif rod.ends.s0 == "periodic":
-                self.bad("time.scheme", "'energy-momentum' does not cover periodic rod ends in this version (rod.ends)")
-            elif rod.measure == "paper":
-                self.bad("time.scheme", "'energy-momentum' needs rod.measure = 'reference'")
         if (rod.constraint == "inextensible_unshearable" and sc.wall is None and sc.fluid is not None
                 and sc.fluid.model == "incompressible" and sc.fluid.ends.s0 != "inflow"):
             # (open ends let the liquid through: the inextensible pipe conveying liquid of Paidoussis, theory §13.1)

@@ -51,15 +51,30 @@ NC = 3  # with rod.constraint: the element forces mu_e (Gamma_e = chi), kept in 
 
 
 def supports(model):
-    """None when the energy-momentum step covers ``model``, else a one-line reason (naming the key)."""
-    if model.tube is not None or getattr(model, "rod", None) is None:
-        return "time.scheme: 'energy-momentum' covers the rod alone ([rod] without [fluid]/[wall]) in this version"
-    rod = model.rod
-    sc = model.scene
+    """None when the energy-momentum step (this module's rod, varint/schemes/em_tube.py's coupled tube) covers
+    ``model``, else a one-line reason naming the key (the scheme's ``supports``: varint/schemes/energy_momentum.py)."""
+    rod, t, sc = model.rod, model.tube, model.scene
+    if rod is None:
+        return ("time.scheme: 'energy-momentum' needs a [rod] in this version (the rod alone, or the rod with "
+                "[fluid] and [wall]); the straight tube runs 'midpoint'")
+    if t is not None and not t.has_fluid:
+        return "time.scheme: 'energy-momentum' needs a [fluid] with a [wall] on a [rod]"
+    if t is not None and t.open_ends:
+        return "time.scheme: 'energy-momentum' covers closed fluid ends only in this version (fluid.ends)"
+    if t is not None and t.periodic:
+        return "time.scheme: 'energy-momentum' covers closed fluid ends only in this version (fluid.ends)"
     if rod.periodic:
         return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
+    if t is not None and t.has_wall and not t.wall_dynamic:
+        return ("time.scheme: 'energy-momentum' needs wall.model = 'dynamic' (a quasistatic wall is not covered in "
+                "this version)")
+    if sc.shock_capturing is not None:
+        return "time.scheme: 'energy-momentum' does not cover [shock_capturing] in this version"
     if rod.paper_measure:
         return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
+    if t is not None and t.forces:
+        return ("time.scheme: 'energy-momentum' does not cover non-conservative forces on the fluid (shock "
+                "capturing, damping) in this version")
     return None
 
 

@@ -50,6 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import em_rod
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
 from ..terms.rod import origin_shift
@@ -68,22 +69,6 @@ _CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
                       [2.0, 0.0, -5.0, 3.0],
                       [0.0, 1.0, 4.0, -3.0],
                       [0.0, 0.0, -1.0, 1.0]])
-
-
-def supports(model):
-    """None when this step covers the coupled ``model``, else a one-line reason naming the key."""
-    t, rod = model.tube, model.rod
-    if rod is None or t is None or not t.has_fluid:
-        return "time.scheme: 'energy-momentum' covers the rod alone or the rod with [fluid] (and [wall])"
-    if t.open or t.periodic or rod.periodic:
-        return "time.scheme: 'energy-momentum' does not cover open or periodic ends in this version (fluid.ends, rod.ends)"
-    if t.has_wall and not t.wall_dynamic:
-        return "time.scheme: 'energy-momentum' needs wall.model = 'dynamic' (or no [wall]); a quasistatic wall is not covered"
-    if t.forces:
-        return "time.scheme: 'energy-momentum' does not cover non-conservative forces (shock capturing, damping) in this version"
-    if rod.paper_measure:
-        return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
-    return None
 
 
 # -- exact, cancellation-free divided differences ------------------------------------------------------------------
@@ -292,7 +277,7 @@ class TubeEMStep:
     multipliers)."""
 
     def __init__(self, model, h, tol=1e-12, max_iter=40, body=True):
-        why = supports(model)
+        why = em_rod.supports(model)
         if why:
             raise SolverError(why)
         rod, t = model.rod, model.tube

@@ -26,9 +26,29 @@ import scipy.sparse as sp
 
 from ..lattice.lie import cay, cay_inv, hat
 from ..terms.rod import origin_shift, pack_level, reorthonormalize, unpack_level
-from ..terms.step import Derivatives, StepPoint
+from ..terms.step import (CoupledFluid, Derivatives, RodConstraint, RodElements, StepPoint, TubeKinetic,
+                          TubeMidpointPotential, TubeTrapezoidalPotential)
 
-__all__ = ["Step", "make_scheme"]
+__all__ = ["Step", "make_scheme", "step_terms"]
+
+
+def step_terms(model, scheme="midpoint"):
+    """The terms of ``model``'s L_d with the potential quadrature ``scheme`` ("midpoint" or "trapezoidal"), kinetic
+    ones included (varint/terms/step.py)."""
+    terms = []
+    if model.tube is not None:
+        terms.append(TubeKinetic(model.tube, model.tube_z.start, model.nz))
+        pot = {"midpoint": TubeMidpointPotential, "trapezoidal": TubeTrapezoidalPotential}[scheme]
+        terms.append(pot(model.tube, model.tube_z.start, model.nz))
+    if model.rod is not None:
+        if scheme != "midpoint":
+            raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")
+        terms.append(RodElements(model.rod, model.rod_z.start, model.nz))
+        if model.rod.constrained:
+            terms.append(RodConstraint(model))
+    if model.coupled:
+        terms.append(CoupledFluid(model))
+    return terms
 
 
 class Step:
@@ -43,7 +63,7 @@ class Step:
         self.model = model
         self.h = float(h)
         self.name = scheme or model.scheme
-        self.terms = model.step_terms(self.name)
+        self.terms = step_terms(model, self.name)
         self.order = min(getattr(t, "order", 2) for t in self.terms)
         self._rod_flat = np.flatnonzero(model.rod.mask) if model.rod is not None else None
 

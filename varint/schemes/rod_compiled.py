@@ -89,8 +89,6 @@ def supports(model):
         return "a [fluid] or [wall] on the rod (the coupled tube)"
     if model.rod.constrained:
         return "rod.constraint = 'inextensible_unshearable'"
-    if model.scheme != "midpoint":
-        return f"time.scheme = {model.scheme!r}"
     if any(type(f).__name__ != "TipTorque" for f in model.forces):
         return "a force other than the tip torque"
     return None

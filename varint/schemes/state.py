@@ -35,9 +35,18 @@ class State:
 
 @dataclass
 class StepStats:
+    """A run's statistics: the last step's Newton iterations and evaluations, and totals over the run."""
+
     iterations: int = 0
     n_residual: int = 0
     n_jacobian: int = 0
     total_iterations: int = 0
     total_jacobians: int = 0
-    fallbacks: int = 0  #: steps that needed the damped-Newton fallback
+    fallbacks: int = 0  #: steps that needed a fallback (a damped Newton restart, or two half steps)
+
+    def record(self, report):
+        """Add one step's :class:`varint.schemes.base.StepReport`."""
+        self.iterations, self.n_residual, self.n_jacobian = report.iterations, report.n_residual, report.n_jacobian
+        self.total_iterations += report.iterations
+        self.total_jacobians += report.n_jacobian
+        self.fallbacks += int(report.fallback)

@@ -1,7 +1,7 @@
-"""Open ends in time (docs/theory.md §13.1–13.5): the part of :class:`varint.run.simulation.Simulation` that changes the
-lattice between steps — parcels injected at the inlet and removed at the outlet, the step rebuilt for the new
+"""Open ends in time (docs/theory.md §13.1–13.5): the part of the variational stepper
+(:class:`varint.schemes.variational.VariationalStepper`) that changes the lattice between steps — parcels injected at the inlet and removed at the outlet, the step rebuilt for the new
 label set, the boundary fluxes booked into the balances, and the monitors and fields of an open tube, straight
-(``_open_*``) or on a [rod] (``_oc_*``).  A mixin: it reads and writes the simulation's state, step and model; the
+(``_open_*``) or on a [rod] (``_oc_*``).  A mixin: it reads and writes the stepper's state, step and model; the
 terms of the discrete Lagrangian stay in varint/terms/open_ends.py and varint/terms/step.py.
 """
 
@@ -9,24 +9,25 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from ..errors import SolverError
 from ..lattice.lie import cay_inv
-from ..terms.rod import unpack_level
+from ..terms.rod import CHI, unpack_level
+from ..terms.rod_constraint import constraint_jacobian, element_strain_residual
+from .midpoint import make_scheme
 
 __all__ = ["OpenEndsStepping"]
 
 
 class OpenEndsStepping:
-    """Lattice updates, balances, monitors and fields of open ends, mixed into :class:`varint.run.simulation.Simulation`."""
+    """Lattice updates, balances, monitors and fields of open ends, mixed into the variational stepper."""
 
     def _rebuild(self):
         """The step, scales and Newton's reused factor after the open lattice changed (a label injected or removed)."""
         m = self.model
         m._layout()
-        from ..schemes.midpoint import make_scheme
-
-        self.scheme = make_scheme(m, self.h, self.scheme.name)
+        self.action = make_scheme(m, self.h, self.action.name)
         self.scale, self.offset = self._scales()
         self._factor = None
         self._built_version = m.tube.lattice_version
@@ -74,7 +75,7 @@ class OpenEndsStepping:
         U(q1) - U(q0) - dq . grad U(c_mid), which vanishes when the parcels' volumes do not change."""
         m, h = self.model, self.h
         t = m.tube
-        pt = self.scheme.point(q0, z)
+        pt = self.action.point(q0, z)
         cfg = t.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
         g = t.gradient(cfg)[: t.M + 1]
         dE, dP = 0.0, -h * float(np.sum(g))
@@ -240,7 +241,6 @@ class OpenEndsStepping:
         out["momentum_balance"] = np.array([P - P0 - fP, 0.0, 0.0])
         out["mass_balance"] = mass - mass0 - fm
         out["parcels"] = int(t.M)
-        out["newton_iterations"] = self.stats.iterations
         out["entropy"] = float(np.sum(t.m * t.S))
         if t.incompressible:
             out["constraint_residual"] = float(np.max(np.abs(t.volumes(cfg) / t.V0 - 1.0)))
@@ -304,7 +304,6 @@ class OpenEndsStepping:
         """Level velocities from the stored momenta in the kinetic metric (held components at rest, the piston at
         U_in; the inextensible rod's in its tangent space, as the closed coupled tube's monitor):
         (vel, Jx, rod diagonal, X, X')."""
-        import scipy.sparse.linalg as spla
 
         m = self.model
         t, rod = m.tube, m.rod
@@ -322,7 +321,6 @@ class OpenEndsStepping:
         rhs = (np.concatenate([pr, ps]) - Mt @ known)[active]
         Maa = Mt[active][:, active].tocsc()
         if rod.constrained:
-            from ..terms.rod_constraint import constraint_jacobian
 
             G = constraint_jacobian(Lam, r, rod.ds, rod.ncomp, rod.mask)
             G = sp.hstack([G, sp.csr_matrix((G.shape[0], len(active) - G.shape[1]))]).tocsr()
@@ -341,7 +339,6 @@ class OpenEndsStepping:
         kinetic energy of its velocities, (X_k^{n+1} - X_k^n)/h for every label (the piston's included) and the nodes'
         (r^{n+1} - r^n)/h and xi/h, plus the potential at its midpoint data (strain midpoint, rbar, sbar); record 0:
         the initial data's (velocities from the momenta in the kinetic metric, the potential at the level)."""
-        from ..terms.rod import CHI
 
         m = self.model
         t, rod = m.tube, m.rod
@@ -407,8 +404,8 @@ class OpenEndsStepping:
         m, h = self.model, self.h
         t, rod = m.tube, m.rod
         b = t.balance
-        pt = self.scheme.point(q0, z)
-        fluid = next(x for x in self.scheme.terms if x.name == "fluid")
+        pt = self.action.point(q0, z)
+        fluid = next(x for x in self.action.terms if x.name == "fluid")
         pot, kin = fluid._parts(pt)
         if t.n_fixed:
             # the inlet's work: its force against the midpoint potential over the step, h U_in dU/dsbar_0 (the flow
@@ -423,7 +420,7 @@ class OpenEndsStepping:
                 # h mu_n dV_0/ds_0 = -h dU_mu(q_n)/ds_0, whole between the two step energies
                 g0 = fluid._level_volumes(pt, False)[0][1]
                 b[5] += h * t.U_in * float(g0[fluid.off0["s"]])
-        d = self.scheme._derivatives(pt, 0)
+        d = self.action._derivatives(pt, 0)
         for force in m.forces:
             force.add(pt, d, 0)
         n1 = rod.N + 1
@@ -437,7 +434,7 @@ class OpenEndsStepping:
 
     def _level_constraint(self):
         """True when the coupled liquid holds its volumes at the levels (varint.terms.step.CoupledFluid)."""
-        return any(getattr(x, "level_constraint", False) for x in self.scheme.terms)
+        return any(getattr(x, "level_constraint", False) for x in self.action.terms)
 
     def _oc_update(self, st):
         """Inject and remove parcels of the open coupled tube at a level (docs/theory.md §13.2-13.3, coupled).
@@ -578,10 +575,8 @@ class OpenEndsStepping:
         out["constraint_residual"] = float(np.max(np.abs(V / t.V0 - 1.0)))
         out["frame_orthogonality"] = float(np.max(np.abs(np.swapaxes(Lam, 1, 2) @ Lam - np.eye(3))))
         if rod.constrained:
-            from ..terms.rod_constraint import element_strain_residual
 
             out["rod_constraint_residual"] = element_strain_residual(rod, Lam, r)
-        out["newton_iterations"] = self.stats.iterations
         return out
 
     def _oc_fields(self):
