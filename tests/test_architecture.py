@@ -22,7 +22,7 @@ LAYERS = {
     "schemes": 5,
     "run": 6,
     "analysis": 7,
-    "plotting": 8, "sweep": 8,
+    "plotting": 8, "sweep": 8, "capabilities": 8,
     "cli": 9,
     "__init__": 10, "__main__": 10,
 }
