@@ -32,11 +32,25 @@ from varint import Simulation  # noqa: E402
 
 
 def module_at(rev, name):
-    """varint/<name>.py at git revision rev, loaded as a standalone module."""
-    text = subprocess.run(["git", "show", f"{rev}:varint/{name}.py"], cwd=ROOT, check=True, capture_output=True,
-                          text=True).stdout
-    text = re.sub(r"from \.(\w+) import", r"from varint.\1 import", text)
-    path = Path(tempfile.mkdtemp()) / f"{name}_at_{rev}.py"
+    """The module ``name`` (e.g. "schemes/em_rod") at git revision rev, loaded as a standalone module; a revision
+    from before the package's layers (fb7a82d) has it flat (varint/rod_em.py, varint/rod_step_fast.py), and its
+    relative imports are pointed at the current package's modules of the same name."""
+    flat = {"schemes/em_rod": "rod_em", "schemes/rod_compiled": "rod_step_fast"}[name]
+    show = subprocess.run(["git", "show", f"{rev}:varint/{name}.py"], cwd=ROOT, capture_output=True, text=True)
+    if show.returncode == 0:
+        text, pkg = show.stdout, "varint." + name.rsplit("/", 1)[0]
+        text = re.sub(r"from \.\.(\w[\w.]*) import", r"from varint.\1 import", text)
+        text = re.sub(r"from \.(\w[\w.]*) import", rf"from {pkg}.\1 import", text)
+        text = re.sub(r"from \. import", rf"from {pkg} import", text)
+    else:  # before the layers: flat modules whose names moved (the current package has them in its layers)
+        text = subprocess.run(["git", "show", f"{rev}:varint/{flat}.py"], cwd=ROOT, check=True, capture_output=True,
+                              text=True).stdout
+        moved = {"rod": "terms.rod", "errors": "errors", "newton": "schemes.newton", "lie": "lattice.lie",
+                 "stepper": "schemes.state"}
+        text = re.sub(r"from \.(\w+) import", lambda m: f"from varint.{moved.get(m.group(1), m.group(1))} import", text)
+        text = text.replace("from varint.schemes.state import Step", "from varint.schemes.midpoint import Step")
+        text = re.sub(r"\b_k_(body_rows|cay|chart_column|element|measure)\b", r"k_\1", text)
+    path = Path(tempfile.mkdtemp()) / f"{flat}_at_{rev}.py"
     path.write_text(text)
     spec = importlib.util.spec_from_file_location(path.stem, path)
     mod = importlib.util.module_from_spec(spec)
@@ -61,7 +75,7 @@ def bench_em(rev, rounds):
 
     from varint.schemes.em_rod import RodEMStep
 
-    old = module_at(rev, "rod_em")
+    old = module_at(rev, "schemes/em_rod")
     print("| case | now ms/step | at " + rev + " ms/step | ratio |\n|---|---|---|---|")
     for name, kw in CASES.items():
         kw = dict(kw, dim=3)
@@ -81,7 +95,7 @@ def bench_fast(rev, rounds):
 
     from varint.schemes.rod_compiled import FastRodStep
 
-    old = module_at(rev, "rod_step_fast")
+    old = module_at(rev, "schemes/rod_compiled")
     T1 = 2 * math.pi / reference(E)
     print("| model | elements | now µs/step | it./step | at " + rev + " µs/step | it./step | now / then |")
     print("|---|---|---|---|---|---|---|")
