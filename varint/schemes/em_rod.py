@@ -65,9 +65,6 @@ def supports(model):
         return "time.scheme: 'energy-momentum' covers closed fluid ends only in this version (fluid.ends)"
     if rod.periodic:
         return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
-    if t is not None and t.has_wall and not t.wall_dynamic:
-        return ("time.scheme: 'energy-momentum' needs wall.model = 'dynamic' (a quasistatic wall is not covered in "
-                "this version)")
     if sc.shock_capturing is not None:
         return "time.scheme: 'energy-momentum' does not cover [shock_capturing] in this version"
     if rod.paper_measure:

@@ -311,6 +311,9 @@ class TubeEMStep:
         self.s = np.asarray(cfg.s, dtype=float).copy()
         self.R = np.asarray(cfg.R, dtype=float).copy()
         self.wall = t.wall if t.has_wall else None
+        #: the wall's radii are unknowns (any [wall]); with inertia a w_j (dynamic), or none (quasistatic: their rows
+        #: are the wall's discrete-gradient balance, docs/theory.md §12b "A quasistatic wall")
+        self.radii_unknown = bool(t.has_wall)
         self.dyn = bool(t.has_wall and t.wall_dynamic)
         self.aw = (t.wall.a * t.node_weights) if self.dyn else np.zeros(n1)
         self.w = np.asarray(t.node_weights, dtype=float)
@@ -376,7 +379,7 @@ class TubeEMStep:
     def _layout(self):
         n1, M = self.N + 1, self.M
         sizes = [("dr", n1 * 3), ("dD", n1 * 9), ("lam", n1 * 6), ("mu_rod", self.N * 3 if self.constrained else 0),
-                 ("dR", n1 if self.dyn else 0), ("ds", M - 1), ("dX", (M - 1) * 3), ("nu", (M - 1) * 3),
+                 ("dR", n1 if self.radii_unknown else 0), ("ds", M - 1), ("dX", (M - 1) * 3), ("nu", (M - 1) * 3),
                  ("mu_liq", M if self.incompressible else 0)]
         self.sl, o = {}, 0
         for name, n in sizes:
@@ -425,7 +428,7 @@ class TubeEMStep:
                    ds=z[..., self.sl["ds"]], dX=z[..., self.sl["dX"]].reshape(b + (M - 1, 3)),
                    nu=z[..., self.sl["nu"]].reshape(b + (M - 1, 3)))
         out["mu_rod"] = z[..., self.sl["mu_rod"]].reshape(b + (self.N, 3)) if self.constrained else None
-        out["dR"] = z[..., self.sl["dR"]] if self.dyn else np.zeros(b + (n1,))
+        out["dR"] = z[..., self.sl["dR"]] if self.radii_unknown else np.zeros(b + (n1,))
         out["mu_liq"] = z[..., self.sl["mu_liq"]] if self.incompressible else None
         return out
 
@@ -433,7 +436,7 @@ class TubeEMStep:
         parts = [np.ravel(dr), np.ravel(dD), np.ravel(lam)]
         if self.constrained:
             parts.append(np.ravel(self.mu_rod if mu_rod is None else mu_rod))
-        if self.dyn:
+        if self.radii_unknown:
             parts.append(np.ravel(dR))
         parts += [np.ravel(ds), np.ravel(dX), np.ravel(nu)]
         if self.incompressible:
@@ -732,7 +735,7 @@ class TubeEMStep:
         parts = [Rr.reshape(b + (-1,)), RD.reshape(b + (-1,)), Rl.reshape(b + (-1,))]
         if self.constrained:
             parts.append((strains(r1, D1, self.ds)[1] - CHI).reshape(b + (-1,)))
-        if self.dyn:
+        if self.radii_unknown:  # (a quasistatic wall: aw = 0, the row is the wall's discrete-gradient balance)
             parts.append((2.0 / h) * self.aw * (u["dR"] - h * self.Rdot) + h * (self.wall_dd(self.R, R1) + fl["gR"]))
         parts.append(h * (fl["gs"] + Fs_c))
         parts.append(((2.0 / h) * self.mbar[:, None] * (u["dX"] - h * self.Xdot) + h * (FX_c - self.mbar[:, None] * self.g)).reshape(b + (-1,)))

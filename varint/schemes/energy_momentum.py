@@ -91,7 +91,10 @@ class EnergyMomentumStepper(LevelMonitors, Stepper):
     def step(self, state):
         if state is not self._state:
             self.state = state
-        self.state = self.engine.step_state(self._state, self.model)
+        new = self.engine.step_state(self._state, self.model)
+        # the state's predictor data (State.v) from the step's two levels: the fields' velocities are the step's
+        new.v = self.action.velocity(new.q_prev, new.q)
+        self.state = new
         last = self.engine.last
         # fallback 1: full Newton restarted; 2: solved from two half steps
         return self._state, StepReport(last["iterations"], 0, last["jacobians"], last["fallback"] > 0)

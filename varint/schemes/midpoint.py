@@ -115,6 +115,21 @@ class Step:
             parts += [u[rod.mask], lam[m.rod_lam]]
         return np.concatenate(parts) if parts else np.empty(0)
 
+    def velocity(self, q0, q1):
+        """The predictor's data of the step from level ``q0`` to ``q1`` (``State.v``): the tube's (q1 - q0)/h, the rod's
+        body-frame displacement b and xi on every node (a scheme that steps its own variables fills the state's with
+        it, so that the fields' velocities are the step's)."""
+        m = self.model
+        parts = []
+        if m.tube is not None:
+            parts.append((q1[m.tube_q] - q0[m.tube_q]) / self.h)
+        if m.rod is not None:
+            L0, r0, o0 = unpack_level(q0[m.rod_q], m.rod.N)
+            L1, r1, o1 = unpack_level(q1[m.rod_q], m.rod.N)
+            parts += [np.einsum("nji,nj->ni", L0, (r1 + o1) - (r0 + o0)).ravel(),
+                      cay_inv(np.swapaxes(L0, 1, 2) @ L1).ravel()]
+        return np.concatenate(parts) if parts else np.empty(0)
+
     def point_and_frames(self, q0, z):
         """:meth:`point` with the new level's re-orthonormalised frames ``Lam_1`` (the accepted step's data)."""
         pt = self.point(q0, z)
