@@ -36,7 +36,7 @@ def _standing_wave_frequency(model, sim, steps, k, field="pressure"):
     return zero_crossing_frequency(np.array(t), np.array(a))
 
 
-@pytest.mark.parametrize("scheme", ["midpoint", "trapezoidal"])
+@pytest.mark.parametrize("scheme", ["midpoint", "trapezoidal", "energy-momentum"])
 def test_rigid_tube_sound_speed(scheme):
     """Periodic rigid tube, 64 parcels per wavelength: standing wave at omega = sqrt(gamma p / rho) k."""
     k = 2 * math.pi

@@ -55,8 +55,7 @@ def supports(model):
     ``model``, else a one-line reason naming the key (the scheme's ``supports``: varint/schemes/energy_momentum.py)."""
     rod, t, sc = model.rod, model.tube, model.scene
     if rod is None:
-        return ("time.scheme: 'energy-momentum' needs a [rod] in this version (the rod alone, or the rod with "
-                "[fluid] and [wall]); the straight tube runs 'midpoint'")
+        return straight_tube_supports(model)
     if t is not None and not t.has_fluid:
         return "time.scheme: 'energy-momentum' needs a [fluid] with a [wall] on a [rod]"
     if t is not None and t.open_ends:
@@ -72,6 +71,21 @@ def supports(model):
     if t is not None and t.forces:
         return ("time.scheme: 'energy-momentum' does not cover non-conservative forces on the fluid (shock "
                 "capturing, damping) in this version")
+    return None
+
+
+def straight_tube_supports(model):
+    """The straight tube's energy-momentum step (the midpoint step with discrete-gradient pressures, docs/theory.md
+    §12d): None where it is built, else the reason naming the key."""
+    t, sc = model.tube, model.scene
+    if t.eos is None or not t.eos.has_entropy:
+        return ("time.scheme: 'energy-momentum' on the straight tube needs an ideal gas (fluid.model = 'ideal-gas'): "
+                "its discrete-gradient pressure is the ideal gas's mean-value pressure; a liquid runs 'midpoint'")
+    if t.has_wall and not t.wall_dynamic:
+        return ("time.scheme: 'energy-momentum' needs a rigid or a dynamic wall on the straight tube: a quasistatic "
+                "wall's radii are half-level unknowns of the midpoint step (wall.model)")
+    if t.open_ends:
+        return "time.scheme: 'energy-momentum' covers closed and periodic fluid ends of the straight tube (fluid.ends)"
     return None
 
 

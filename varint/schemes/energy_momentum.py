@@ -10,11 +10,15 @@ momenta.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from . import em_rod, em_tube
 from .base import Scheme, Stepper, StepReport
 from .midpoint import make_scheme
 from .monitors import LevelMonitors
 from .state import State
+from .variational import VariationalStepper
+from ..terms.shock_capturing import ShockCapturing, make_shock_capturing
 
 __all__ = ["EnergyMomentum", "EnergyMomentumStepper"]
 
@@ -31,12 +35,16 @@ class EnergyMomentum(Scheme):
         return em_rod.supports(model)
 
     def stepper(self, model, h, tol=None, max_iter=None, state=None):
+        if model.rod is None:
+            return straight_tube_stepper(model, h, tol, max_iter, state)
         return EnergyMomentumStepper(model, h, tol, max_iter, state)
 
     def unknowns(self, model):
         """The step's unknowns per block (``(counts, inertial, algebraic)``); supports keep their rows as trivial
-        equations, so every node counts."""
+        equations, so every node counts.  The straight tube's are the midpoint's (None)."""
         rod, t = model.rod, model.tube
+        if rod is None:
+            return None
         n1 = rod.N + 1
         inertial = {"r": 3 * n1, "directors": 9 * n1}
         algebraic = {"orthonormality": 6 * n1}
@@ -51,6 +59,20 @@ class EnergyMomentum(Scheme):
             if t.incompressible:
                 algebraic["mu"] = t.M
         return {**inertial, **algebraic}, sum(inertial.values()), sum(algebraic.values())
+
+
+def straight_tube_stepper(model, h, tol=None, max_iter=None, state=None):
+    """The straight tube's energy-momentum step (docs/theory.md §12d): the midpoint step of its labels and radii
+    with the parcels' pressures and volumes replaced by their discrete gradients -- the mean-value pressure of an
+    ideal gas and the averaged-vector-field gradient of a swelling parcel's volume, §11a's force with no viscosity
+    (a scene's own [shock_capturing] force already carries them)."""
+    t = model.tube
+    extra = []
+    if not any(isinstance(f, ShockCapturing) for f in model.forces):
+        extra.append(make_shock_capturing(t, SimpleNamespace(quadratic=0.0, linear=0.0, limiter="none")))
+    tcfg = model.scene.time
+    return VariationalStepper(model, h, "midpoint", min(tcfg.newton_tol, 1e-12) if tol is None else tol, max_iter,
+                              state, extra_forces=extra)
 
 
 class EnergyMomentumStepper(LevelMonitors, Stepper):

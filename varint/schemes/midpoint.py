@@ -59,11 +59,13 @@ class Step:
     tests/test_convergence.py).
     """
 
-    def __init__(self, model, h, scheme=None):
+    def __init__(self, model, h, scheme=None, forces=None):
         self.model = model
         self.h = float(h)
         self.name = scheme or model.scheme
         self.terms = step_terms(model, self.name)
+        #: the non-conservative forces of the step (Lagrange-d'Alembert): the model's, or those a scheme gives
+        self.forces = list(model.forces) if forces is None else list(forces)
         self.order = min(getattr(t, "order", 2) for t in self.terms)
         self._rod_flat = np.flatnonzero(model.rod.mask) if model.rod is not None else None
 
@@ -180,7 +182,7 @@ class Step:
         m = self.model
         pt = self.point(q0, z)
         d = self._derivatives(pt, 0)
-        for force in m.forces:
+        for force in self.forces:
             force.add(pt, d, 0)
         parts = []
         if m.tube is not None:
@@ -212,7 +214,7 @@ class Step:
                 points.append(pts)
                 if sp_ is not None:
                     spins.append(sp_)
-        for force in m.forces:
+        for force in self.forces:
             force.add(pt, d, 0)
         pi_n = p0[m.rod_p].reshape(2, rod.N + 1, 3).transpose(1, 0, 2).reshape(rod.N + 1, 6)
         R = pi_n + d.rod  # each node's momentum and inertial pieces combined before the sums (they nearly cancel)
@@ -255,7 +257,7 @@ class Step:
         reads level n only)."""
         pt = self.point(q0, z)
         J = None
-        for t in list(self.terms) + self.model.forces:
+        for t in list(self.terms) + self.forces:
             b = t.jacobian(pt)
             if b is not None:
                 J = b if J is None else J + b
@@ -266,7 +268,7 @@ class Step:
         m = self.model
         pt = pt if pt is not None else self.point_and_frames(q0, z)
         d = self._derivatives(pt, 1)
-        for force in m.forces:
+        for force in self.forces:
             force.add(pt, d, 1)
         parts = []
         if m.tube is not None:
@@ -285,9 +287,10 @@ class Step:
     def explicit(self):
         """True when the residual is affine in z with a constant diagonal Jacobian (Stormer-Verlet on the
         tube): one linear solve is then the exact step, no Newton iteration is needed."""
-        return all(t.constant_diagonal_jacobian() for t in self.terms) and not self.model.forces
+        return all(t.constant_diagonal_jacobian() for t in self.terms) and not self.forces
 
 
-def make_scheme(model, h, name=None):
-    """The :class:`Step` of ``model`` with time step ``h`` and quadrature ``name`` (default: the scene's)."""
-    return Step(model, h, name)
+def make_scheme(model, h, name=None, forces=None):
+    """The :class:`Step` of ``model`` with time step ``h``, quadrature ``name`` (default: the scene's) and ``forces``
+    (default: the model's)."""
+    return Step(model, h, name, forces)

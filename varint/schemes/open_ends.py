@@ -27,7 +27,7 @@ class OpenEndsStepping:
         """The step, scales and Newton's reused factor after the open lattice changed (a label injected or removed)."""
         m = self.model
         m._layout()
-        self.action = make_scheme(m, self.h, self.action.name)
+        self.action = make_scheme(m, self.h, self.action.name, self._forces())
         self.scale, self.offset = self._scales()
         self._factor = None
         self._built_version = m.tube.lattice_version
@@ -421,7 +421,7 @@ class OpenEndsStepping:
                 g0 = fluid._level_volumes(pt, False)[0][1]
                 b[5] += h * t.U_in * float(g0[fluid.off0["s"]])
         d = self.action._derivatives(pt, 0)
-        for force in m.forces:
+        for force in self.action.forces:
             force.add(pt, d, 0)
         n1 = rod.N + 1
         res = p0[m.rod_p][: 3 * n1].reshape(n1, 3) + d.rod[:, :3]

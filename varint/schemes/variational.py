@@ -91,7 +91,7 @@ class Trapezoidal(Scheme):
 class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
     """The midpoint or trapezoidal step of one model (see the module notes); ``action`` is its discrete action."""
 
-    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None):
+    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None, extra_forces=()):
         tcfg = model.scene.time
         self.model = model
         self.h = float(h)
@@ -101,7 +101,9 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
                               f"parcel ({0.5 * t.ell_in:.3g} m); reduce time.step or fluid.parcels")
         self._built_version = None  # open ends: the lattice version the step was built for
         #: the discrete action of one step: L_d, its derivatives, the Newton residual and Jacobian
-        self.action = make_scheme(model, self.h, name)
+        #: forces the scheme adds to the model's (the energy-momentum scheme's discrete-gradient pressure)
+        self.extra_forces = list(extra_forces)
+        self.action = make_scheme(model, self.h, name, self._forces())
         self.tol = tol if tol is not None else tcfg.newton_tol
         self.max_iter = max_iter if max_iter is not None else tcfg.max_iterations
         if state is None and model.initial_data:
@@ -122,6 +124,10 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
         self.compiled = None
         if name == "midpoint" and not self.open and rod_compiled.supports(model) is None:
             self.compiled = rod_compiled.FastRodStep(model, self.h, self.tol, self.max_iter)
+
+    def _forces(self):
+        """The step's forces: the model's, then the scheme's own (rebuilt with the lattice of open ends)."""
+        return list(self.model.forces) + self.extra_forces
 
     @property
     def state(self):
@@ -341,7 +347,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
                 raise SolverError(f"{self._where(n1)}: node {j} turns by {deg:.0f} degrees in one "
                                   "step (more than 90); reduce time.step", step=n1, time=n1 * self.h)
         p1 = self.action.momentum_plus(st.q, z, pt)
-        for force in m.forces:
+        for force in self.action.forces:
             if hasattr(force, "after_step"):  # e.g. a viscosity heating the parcels it slowed
                 force.after_step(pt)
         q1 = self.action.retract(st.q, z, floating_origin=self.floating_origin, pt=pt)
