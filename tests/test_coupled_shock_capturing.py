@@ -76,15 +76,14 @@ def _moved(model, q, rng, amp):
 
 def _force_residual(step, force, q0, z):
     """The force's part of the step residual (rod translations rotated into the level-n frames, as the stepper)."""
-    model = step.model
-    saved = model.forces
+    saved = step.forces
     try:
-        model.forces = [force]
+        step.forces = [force]
         with_f = step.residual(q0, step._p0, z)
-        model.forces = []
+        step.forces = []
         without = step.residual(q0, step._p0, z)
     finally:
-        model.forces = saved
+        step.forces = saved
     return with_f - without
 
 

@@ -64,13 +64,14 @@ def supports(model):
         return "time.scheme: 'energy-momentum' covers closed fluid ends only in this version (fluid.ends)"
     if rod.periodic:
         return "time.scheme: 'energy-momentum' does not cover periodic rod ends in this version (rod.ends)"
-    if sc.shock_capturing is not None:
-        return "time.scheme: 'energy-momentum' does not cover [shock_capturing] in this version"
+    if sc.shock_capturing is not None and sc.shock_capturing.limiter != "none":
+        return ("shock_capturing.limiter: the energy-momentum scheme takes the viscosity without a limiter in this "
+                "version (limiter = 'none')")
     if rod.paper_measure:
         return "time.scheme: 'energy-momentum' needs rod.measure = 'reference'"
-    if t is not None and t.forces:
-        return ("time.scheme: 'energy-momentum' does not cover non-conservative forces on the fluid (shock "
-                "capturing, damping) in this version")
+    if t is not None and any(type(f).__name__ != "CoupledShockCapturing" for f in t.forces):
+        return ("time.scheme: 'energy-momentum' does not cover this non-conservative force on the fluid in this "
+                "version")
     return None
 
 

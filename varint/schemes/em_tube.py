@@ -53,7 +53,9 @@ import scipy.sparse.linalg as spla
 from . import em_rod
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
+from ..terms.coupled_shock_capturing import CoupledShockCapturing
 from ..terms.rod import origin_shift
+from ..terms.shock_capturing import heated_entropy, viscous_pressure_q
 from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step, potential, rigid_correction, strains, tip_torque_forces)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
@@ -329,6 +331,10 @@ class TubeEMStep:
         self.incompressible = bool(t.incompressible)
         self.mk = np.asarray(t.m, dtype=float)
         self.Sk = np.asarray(t.S, dtype=float) if t.eos is not None else None
+        #: [shock_capturing]: the viscous pressure Q_k(V^n, V^{n+1}) joins the parcels' pressures in the volumes'
+        #: discrete gradient, and its work heats the parcels after each step (docs/theory.md §12b, "Shock capturing")
+        self.shock = next((f for f in t.forces if isinstance(f, CoupledShockCapturing)), None)
+        self.viscous_work = 0.0  #: the viscous work since t = 0 (J): what the shock capturing turned into heat
         self.V0 = np.asarray(t.V0, dtype=float) if self.incompressible else None
         self.mu_liq = np.zeros(self.M)
         self.p_ext = float(t.p_ext)
@@ -595,6 +601,8 @@ class TubeEMStep:
         c = c + self.p_ext
         if self.incompressible:
             c = c - u["mu_liq"]
+        if self.shock is not None:  # the viscous pressure acts with the gas's own (psi' = -p)
+            c = c - self._viscous_pressure(V0, V1)
         if self.compiled:
             B = s1r.shape[0]
             gs, gR, gg = np.empty((B, self.M + 1), dt), np.empty((B, self.N + 1), dt), np.empty((B, self.N + 1), dt)
@@ -632,6 +640,28 @@ class TubeEMStep:
         gR = _scatter(np.concatenate([gRp[..., 0], gRp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
         gg = _scatter(np.concatenate([gGp[..., 0], gGp[..., 1]], -1), np.concatenate([pe, pe + 1]), n1)
         return self._fluid_out(V0, V1, c, gs, gR, gg)
+
+    def _viscous_pressure(self, V0, V1):
+        """Q_k(V^n, V^{n+1}) of the shock capturing (varint.terms.shock_capturing.viscous_pressure_q; complex-safe, the
+        Jacobian's complex steps pass through it), with the coupled tube's compression rate (level n's mean
+        cross-section, or pi R0^2 in a rigid tube: CoupledShockCapturing.cross_sections)."""
+        f = self.shock
+        A = f.cross_sections(self.s, V0)
+        K = np.exp(self.Sk / f.cv) * self.mk ** f.gamma
+        return viscous_pressure_q(V0, V1, self.mk, K, f.gamma, A, self.h, f.cQ, f.cL)
+
+    def _heat(self, u):
+        """Raise each parcel's entropy by the viscous work of the accepted step, W_k = -Q_k (V^{n+1} - V^n) >= 0 at
+        V^{n+1}: the internal energy gains exactly what the viscous pressure took from the motion."""
+        s1 = self.s.copy()
+        s1[1:-1] += u["ds"]
+        V0 = self.volumes(self.s, self.R, self.r, self.D)
+        V1 = self.volumes(s1, self.R + u["dR"], self.r + u["dr"], self.D + u["dD"])
+        f = self.shock
+        W = np.maximum(-np.real(self._viscous_pressure(V0, V1)) * (V1 - V0), 0.0)  # (the max guards round-off)
+        K = np.exp(self.Sk / f.cv) * self.mk ** f.gamma
+        self.Sk[:] = heated_entropy(self.Sk, V1, K, W, f.gamma, f.cv)
+        self.viscous_work += float(np.sum(W))
 
     @staticmethod
     def _fluid_out(V0, V1, c, gs, gR, gg):
@@ -825,31 +855,44 @@ class TubeEMStep:
         plan = self._colouring.get(key)
         if plan is not None:
             return plan
-        P = np.zeros((self.n_loc, self.n_loc), bool)
+        # the location pattern P (sparse: each block touches a bounded stencil, so building it, the conflict graph
+        # P^T P and the colouring cost O(locations), not the O(locations^3) of a dense product)
+        pr, pc = [], []
         for rows, cols, hub in key:
-            rows, cols = list(rows), list(cols)
+            rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
             if hub:
-                allr = rows + cols
-                P[np.ix_(allr, cols)] = True
-                P[np.ix_(cols, allr)] = True
+                allr = np.concatenate([rows, cols])
+                pr += [np.repeat(allr, len(cols)), np.tile(cols, len(allr))]
+                pc += [np.tile(cols, len(allr)), np.repeat(allr, len(cols))]
             else:
-                P[np.ix_(rows, cols)] = True
-        Pi = P.astype(np.int32)
-        conflict = (Pi.T @ Pi) > 0
+                pr.append(np.repeat(rows, len(cols)))
+                pc.append(np.tile(cols, len(rows)))
+        pr, pc = np.concatenate(pr), np.concatenate(pc)
+        P = sp.csr_matrix((np.ones(len(pr), np.int64), (pr, pc)), shape=(self.n_loc, self.n_loc))
+        P.sum_duplicates()
+        P.data[:] = 1
+        conflict = (P.T @ P).tocsr()
         size = np.bincount(self.loc_of, minlength=self.n_loc)
-        members = [np.nonzero(self.loc_of == a)[0] for a in range(self.n_loc)]
+        order = np.argsort(self.loc_of, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(size)])
         colour = np.full(self.nz, -1)
         loc_col = [None] * self.n_loc
         for a in np.argsort(-size, kind="stable"):
             if size[a] == 0:
                 continue
-            busy = np.zeros(self.nz + 1, bool)
-            for b in np.nonzero(conflict[a])[0]:
+            busy = set()
+            for b in conflict.indices[conflict.indptr[a]:conflict.indptr[a + 1]]:
                 if loc_col[b] is not None:
-                    busy[loc_col[b]] = True
-            loc_col[a] = np.nonzero(~busy)[0][: size[a]]
-            colour[members[a]] = loc_col[a]
-        rows, cols = np.nonzero(P[self.loc_of][:, self.loc_of])
+                    busy.update(loc_col[b])
+            free, c = [], 0
+            while len(free) < size[a]:
+                if c not in busy:
+                    free.append(c)
+                c += 1
+            loc_col[a] = free
+            colour[order[starts[a]:starts[a + 1]]] = free
+        Pz = P[self.loc_of][:, self.loc_of].tocoo()
+        rows, cols = Pz.row, Pz.col
         plan = (colour, int(colour.max()) + 1, rows, cols)
         if len(self._colouring) > 256:
             self._colouring.clear()
@@ -1009,6 +1052,8 @@ class TubeEMStep:
         u = self.unpack(z)
         if self.has_torque:
             self.work += float(np.sum(tip_torque_forces(self.D[-1] + 0.5 * u["dD"][-1], self.torque) * u["dD"][-1]))
+        if self.shock is not None:
+            self._heat(u)
         self.v = 2.0 * u["dr"] / h - self.v
         self.V = 2.0 * u["dD"] / h - self.V
         self.Xdot = 2.0 * u["dX"] / h - self.Xdot
@@ -1098,6 +1143,8 @@ class TubeEMStep:
         data = {f"tem_{k}": np.asarray(getattr(self, k), dtype=float).ravel() for k in self._STATE}
         data["tem_origin"] = self.origin.copy()
         data["tem_work"] = np.array([self.work])
+        if self.shock is not None:  # the heated entropies (a halved step goes back to the level's)
+            data["tem_S"], data["tem_viscous_work"] = self.Sk.copy(), np.array([self.viscous_work])
         if self._prev is not None:
             for k, v in zip(("dr", "D", "dR", "ds", "dX"), self._prev):
                 data[f"tem_prev_{k}"] = np.asarray(v, dtype=float).ravel()
@@ -1111,6 +1158,9 @@ class TubeEMStep:
         # a checkpoint written before the floating origin: its positions are absolute
         self.origin = np.array(data.get("tem_origin", np.zeros(3)), dtype=float).reshape(3)
         self.work = float(np.asarray(data.get("tem_work", [0.0])).ravel()[0])
+        if self.shock is not None and "tem_S" in data:
+            self.Sk[:] = np.asarray(data["tem_S"], dtype=float)
+            self.viscous_work = float(np.asarray(data["tem_viscous_work"]).ravel()[0])
         self._prev = None
         if "tem_prev_dr" in data:
             shapes = (self.r.shape, self.D.shape, self.R.shape, (self.M - 1,), self.X.shape)
@@ -1175,6 +1225,8 @@ class TubeEMStep:
             out["external_work"] = self.work  # the tip torque's, since t = 0: E - external_work is conserved
         if self.eos is not None and self.eos.has_entropy:
             out["entropy"] = float(np.sum(self.mk * self.Sk))
+        if self.shock is not None:
+            out["viscous_work"] = self.viscous_work
         if self.incompressible:
             V = self.volumes(self.s, self.R, self.r, self.D)
             out["constraint_residual"] = float(np.max(np.abs(V / self.V0 - 1.0)))

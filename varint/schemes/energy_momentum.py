@@ -114,6 +114,8 @@ class EnergyMomentumStepper(LevelMonitors, Stepper):
         if state is not self._state:
             self.state = state
         new = self.engine.step_state(self._state, self.model)
+        if new.data is not None:  # data a step changes in the model (the parcels' heated entropy) is the new level's
+            new.data.update(self.model.state_data() or {})
         # the state's predictor data (State.v) from the step's two levels: the fields' velocities are the step's
         new.v = self.action.velocity(new.q_prev, new.q)
         self.state = new

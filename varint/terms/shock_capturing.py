@@ -50,7 +50,7 @@ from .forces import Declaration, Force
 from ..lattice.parcels import k_parcel_gradient, k_parcel_hessian, parcel_derivatives, parcel_volumes
 
 __all__ = ["ShockCapturing", "SwellingShockCapturing", "make_shock_capturing", "avf_volume_gradients",
-           "mean_value_pressure", "viscous_pressure", "heated_entropy"]
+           "mean_value_pressure", "viscous_pressure", "viscous_pressure_q", "heated_entropy"]
 
 #: below this |V1/V0 - 1| the mean-value pressure's derivative is taken from its Taylor series
 _SERIES = 1e-3
@@ -84,32 +84,6 @@ def _mean_value_pressure(V0, V1, K, gamma, P, dP):
             dphi = ((g - 1.0) * (1.0 + x) ** (-g) * x + math.expm1((1.0 - g) * math.log1p(x))) / ((g - 1.0) * x * x)
         P[k] = p0 * phi
         dP[k] = p0 * dphi / V0[k]
-
-
-@njit(cache=True)
-def _viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL, Q, dQ):
-    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A_k h), rho and c at Vbar; dQ/dV1.
-
-    ``A`` per parcel: the tube's cross-section (rigid uniform tube) or the parcel's mean cross-section at
-    level n, V_k^n / (s_{k+1}^n - s_k^n) (a swelling tube), so that du is the jump of the label velocity
-    that would compress the parcel's volume by V1 - V0 at that cross-section."""
-    for k in range(V0.shape[0]):
-        du = (V1[k] - V0[k]) / (A[k] * h)
-        if du >= 0.0:
-            Q[k] = 0.0
-            dQ[k] = 0.0
-            continue
-        d = -du
-        dd = -1.0 / (A[k] * h)  # d(d)/dV1: compressing further (V1 smaller) raises d
-        Vb = 0.5 * (V0[k] + V1[k])
-        rho = m[k] / Vb
-        c = math.sqrt(gamma * K[k] * Vb ** (-gamma) / rho)
-        drho = -0.5 * rho / Vb  # d rho / dV1 (dVbar/dV1 = 1/2)
-        dc = 0.25 * (1.0 - gamma) * c / Vb  # c ~ Vbar^((1-gamma)/2)
-        f = cQ * cQ * d * d + cL * c * d
-        df = 2.0 * cQ * cQ * d * dd + cL * (dc * d + c * dd)
-        Q[k] = rho * f
-        dQ[k] = drho * f + rho * df
 
 
 @njit(cache=True)
@@ -207,13 +181,28 @@ def mean_value_pressure(V0, V1, K, gamma):
     return P, dP
 
 
+def viscous_pressure_q(V0, V1, m, K, gamma, A, h, cQ, cL):
+    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A_k h), rho = m/Vbar and c at Vbar
+    (module docstring, item 1), per parcel; complex-safe (a complex step through V1 gives dQ/dV1: the branch is
+    taken on the real part).
+
+    ``A`` per parcel (or scalar): the tube's cross-section (rigid uniform tube) or the parcel's mean cross-section at
+    level n, V_k^n / (s_{k+1}^n - s_k^n) (a swelling tube), so that du is the jump of the label velocity that would
+    compress the parcel's volume by V1 - V0 at that cross-section."""
+    du = (V1 - V0) / (A * h)
+    Vb = 0.5 * (V0 + V1)
+    rho = m / Vb
+    c = np.sqrt(gamma * K * Vb ** (-gamma) / rho)
+    d = -du
+    return np.where(np.real(du) < 0.0, rho * (cQ * cQ * d * d + cL * c * d), 0.0 * du)
+
+
 def viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL):
-    """(Q, dQ/dV1) per parcel (module docstring, item 1); ``A`` a cross-section, scalar or per parcel."""
-    V0, V1, m, K = (np.ascontiguousarray(a, dtype=np.float64) for a in (V0, V1, m, K))
-    A = np.ascontiguousarray(np.broadcast_to(np.asarray(A, dtype=np.float64), V0.shape))
-    Q, dQ = np.empty_like(V0), np.empty_like(V0)
-    _viscous_pressure(V0, V1, m, K, float(gamma), A, float(h), float(cQ), float(cL), Q, dQ)
-    return Q, dQ
+    """(Q, dQ/dV1) per parcel (:func:`viscous_pressure_q`; the derivative by a complex step, exact to round-off)."""
+    V0, V1, m, K = (np.asarray(a, dtype=np.float64) for a in (V0, V1, m, K))
+    eps = 1e-30 * np.maximum(np.abs(V1), 1e-300)
+    Qc = viscous_pressure_q(V0, V1 + 1j * eps, m, K, float(gamma), A, float(h), float(cQ), float(cL))
+    return np.ascontiguousarray(Qc.real), np.ascontiguousarray(Qc.imag / eps)
 
 
 def heated_entropy(S, V1, K, W, gamma, cv):
@@ -592,7 +581,7 @@ class SwellingShockCapturing(ShockCapturing):
     term the kinetic energy then changes by F . (z1 - z0) = sum_k (Ptilde_k + Q_k) (V_k^{n+1} - V_k^n)
     - (U_wall^{n+1} - U_wall^n) - (U_ext^{n+1} - U_ext^n), and the heating adds -sum_k Q_k dV_k to the
     internal energy: the total is exact.  Q's compression rate uses the parcel's mean cross-section at
-    level n (``_viscous_pressure``).  The Newton block is exact (tests/test_shock_capturing.py).
+    level n (:func:`viscous_pressure_q`).  The Newton block is exact (tests/test_shock_capturing.py).
     """
 
     def __init__(self, tube, keys):
