@@ -17,7 +17,7 @@ The other standard scenes, with the tests and scripts that use them: the rod (:f
 coupled tube (:func:`coupled_scene`, :data:`COUPLED_CASES`, :func:`liquid_cantilever_scenes`), shock tubes straight
 and on a rod (:func:`shock_tube_scene`, :func:`coupled_sod`), air sloshing and smooth waves in the rubber tube
 (:func:`sloshing_scene`, :func:`smooth_wave_scene`) and the periodic flowing pipe (:func:`periodic_pipe_scene`).
-A builder returns a scene dict (to change before :func:`scene_of`) or, where the tests only ever build it, the
+A builder returns a scene dict (to change before :func:`scene_of`) or, as the tests had it, the
 validated Scene; none builds a model (``varint.build_model(scene)``: the model is a higher layer,
 docs/architecture.md).  A few scenes carry their outside truth (:func:`shaft_whirl`, :func:`periodic_pipe_waves`,
 :func:`periodic_pipe_critical_speed`: varint.exact with the scene's numbers).
