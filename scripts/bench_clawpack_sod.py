@@ -23,7 +23,7 @@ swapped from N to N, so that slow drifts of the machine's load hit both):
 * density L1 error against the exact Riemann solution (varint.exact.shocks.RiemannSolution), the same
   sampling for both: each solution piecewise constant on its own cells (PyClaw) or parcels (varint),
   |rho - exact| integrated on 400 000 equal sub-intervals of [0, 1]
-  (``shock_tube_convergence.density_l1``);
+  (``varint.analysis.shock_measure.density_l1``);
 * the contact's width: cells / parcels near the exact contact whose density lies strictly inside its
   jump, 5 % of the jump off either plateau (``shock_tube_convergence.contact_cells``).
 
@@ -58,9 +58,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from shock_tube_convergence import CASES, GAMMA, contact_cells, density_l1, scene_text  # noqa: E402
+from shock_tube_convergence import CASES, GAMMA, SAMPLES, contact_cells, scene_text  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
+from varint.analysis.shock_measure import density_l1  # noqa: E402
 from varint.exact.shocks import RiemannSolution  # noqa: E402
 
 PYCLAW_CFL = 0.9
@@ -106,7 +107,7 @@ def varint_run(case, N, cfl=VARINT_CFL):
     rho, p, _ = model.tube.fluid_fields(cfg, st.p[model.tube_p])
     exact = RiemannSolution(left, right, GAMMA)
     return {"edges": np.asarray(cfg.s), "rho": rho, "cpu": cpu, "wall": wall, "steps": n,
-            "l1": density_l1(cfg.s, rho, exact, end), "contact": contact_cells(cfg.s, rho, exact, end),
+            "l1": density_l1(cfg.s, rho, exact, end, SAMPLES), "contact": contact_cells(cfg.s, rho, exact, end),
             "rho_min": float(rho.min()), "p_min": float(p.min())}
 
 
@@ -163,7 +164,7 @@ def pyclaw_setup(case, N, cfl=PYCLAW_CFL):
     return solver, solution
 
 
-def pyclaw_run(case, N, cfl=PYCLAW_CFL, samples=400001):
+def pyclaw_run(case, N, cfl=PYCLAW_CFL, samples=SAMPLES):
     from clawpack.riemann.euler_with_efix_1D_constants import density, energy, momentum
 
     left, right, end = CASES[case]

@@ -127,10 +127,6 @@ def bench_steps(elements, n_steps):
     import tomllib
 
     from varint import Simulation, build_model, parse_scene
-
-    sys_path = ROOT / "tests"
-    import sys
-    sys.path.insert(0, str(sys_path))
     from varint.scene.text import to_toml
 
     base = tomllib.loads((ROOT / "examples" / "water_filled_hose.toml").read_text())

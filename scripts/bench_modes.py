@@ -8,23 +8,15 @@ Prints the tables recorded in docs/performance.md, all measured in this one run:
 Run:  python scripts/bench_modes.py
 """
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from varint.scene.standard import gas_scene  # noqa: E402
-from helpers import make  # noqa: E402
-from test_rod import rod_scene, solid_section  # noqa: E402
-
-from varint import build_model  # noqa: E402
-from varint.analysis.linear import modes  # noqa: E402
-from varint.exact.beams import timoshenko_cantilever  # noqa: E402
-from varint.analysis.rod_modes import rod_modes  # noqa: E402
+from varint import build_model
+from varint.analysis.linear import modes
+from varint.analysis.rod_modes import rod_modes
+from varint.exact.beams import timoshenko_cantilever
+from varint.scene.standard import gas_scene, rod_scene, scene_of, solid_section
 
 
 def best_of(fn, repeat=3):
@@ -52,7 +44,7 @@ def rod_table():
 def tube_table():
     print("\n| tube parcels | inertial unknowns | dense s | sparse s | dense / sparse |\n|---|---|---|---|---|")
     for parcels in (250, 1000, 2000):
-        _, model = make(gas_scene(nodes=parcels + 1, parcels=parcels))
+        model = build_model(scene_of(gas_scene(nodes=parcels + 1, parcels=parcels)))
         ts = best_of(lambda: modes(model, count=6, method="sparse"))[0]
         td = best_of(lambda: modes(model, count=6, method="dense"), 1)[0]
         print(f"| {parcels} | {model.tube.nq} | {td:.3g} | {ts:.3g} | {td / ts:.0f} |", flush=True)

@@ -20,16 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from varint import Simulation, build_model, parse_scene
+from varint.analysis.signals import zero_crossing_frequency
+from varint.exact.beams import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever
+from varint.lattice.lie import cay
+from varint.scene.standard import solid_section
+from varint.scene.text import to_toml
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from varint.scene.text import to_toml  # noqa: E402
-from varint.analysis.signals import zero_crossing_frequency  # noqa: E402
-from test_rod import solid_section  # noqa: E402
-
-from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.exact.beams import EULER_BERNOULLI_CLAMPED_FREE, timoshenko_cantilever  # noqa: E402
-from varint.lattice.lie import cay  # noqa: E402
 
 L, RAD, RHO, N_EL, TIP = 1.0, 0.01, 1000.0, 100, 0.01
 

@@ -14,20 +14,14 @@ Run alone (2 cores shared otherwise distort the timings):  python scripts/bench_
 
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from test_rod import SPIN, STIFF, rod_scene, solid_section  # noqa: E402
-
-import varint.run.simulation as vs  # noqa: E402
-from varint import Simulation, build_model  # noqa: E402
-from varint.terms.rod import RATE_REFRESH_ROD, banded_jacobian  # noqa: E402
+import varint.run.simulation as vs
+from varint import Simulation, build_model
+from varint.scene.standard import ROD_SPIN, ROD_STIFF_SECTION, rod_scene, solid_section
+from varint.terms.rod import RATE_REFRESH_ROD, banded_jacobian
 
 
 def best_of(fn, repeat=5):
@@ -70,7 +64,7 @@ def scenes(n_el):
     return {
         "planar cantilever": rod_scene(nodes=n_el + 1, dimension=2, h=2e-4, section=solid_section(),
                                        ends=("clamped", "free"), initial={"curvature": [0.0, 0.0, 0.5]}),
-        "3D tumbling": rod_scene(nodes=n_el + 1, h=2e-3, section=STIFF, initial=SPIN, length=1.0),
+        "3D tumbling": rod_scene(nodes=n_el + 1, h=2e-3, section=ROD_STIFF_SECTION, initial=ROD_SPIN, length=1.0),
     }
 
 

@@ -26,12 +26,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT.parent / "tests"))
 
 import bench_pyelastica  # noqa: E402
 from bench_pyelastica import L, N_EL, RAD, RHO, mode_shape, reference  # noqa: E402
+from varint.scene.standard import solid_section  # noqa: E402
 from varint.scene.text import to_toml  # noqa: E402
-from test_rod import solid_section  # noqa: E402
 
 from varint import Simulation, build_model, parse_scene  # noqa: E402
 from varint.lattice.lie import cay  # noqa: E402

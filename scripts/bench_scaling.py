@@ -7,15 +7,11 @@ quote the ratios, not the absolute numbers.  Run:  python scripts/bench_scaling.
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from varint.scene.standard import gas_scene  # noqa: E402
-from helpers import make  # noqa: E402
-
-from varint import Simulation  # noqa: E402
+from varint import Simulation, build_model
+from varint.scene.standard import gas_scene, scene_of
 
 PULSE = lambda L: [{"field": "pressure", "shape": "gaussian", "amplitude": 2e3, "center": 0.5 * L, "width": 0.1 * L}]  # noqa: E731
 
@@ -45,7 +41,8 @@ def scaling():
     for M in SIZES:
         for scheme, wall in (("midpoint", True), ("trapezoidal", True), ("midpoint", False)):
             h = 0.2 * (1.0 / M) / 340.0
-            _, model = make(gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0), scheme=scheme, wall=wall))
+            model = build_model(scene_of(gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0), scheme=scheme,
+                                                   wall=wall)))
             dt, its, jacs = time_steps(model)
             rows.append((M, scheme, wall, dt))
             print(f"| {M} | {scheme} | {'dynamic' if wall else 'rigid'} | {dt * 1e6:.0f} | {1 / dt:.0f} | {its:.2f} | "
@@ -64,7 +61,7 @@ def newton_vs_h():
     print("| h [s] | c h / Δs | Newton it./step | Jacobians per 100 steps |")
     print("|---|---|---|---|")
     for h in (1e-6, 4e-6, 1.6e-5, 6.4e-5, 2.56e-4):
-        _, model = make(gas_scene(nodes=201, parcels=200, h=h, perturbation=PULSE(1.0)))
+        model = build_model(scene_of(gas_scene(nodes=201, parcels=200, h=h, perturbation=PULSE(1.0))))
         sim = Simulation(model)
         for _ in range(100):
             sim.step()
@@ -79,13 +76,13 @@ def effects():
     h = 0.2 / M / 340.0
     base = None
     for label, kw in (("rigid wall (no R unknowns)", dict(wall=False)), ("dynamic wall", dict(wall=True))):
-        _, model = make(gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0), **kw))
+        model = build_model(scene_of(gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0), **kw)))
         dt, _, _ = time_steps(model)
         base = base or dt
         print(f"| {label} | {model.nz} | {dt * 1e6:.0f} | {dt / base:.2f} |")
     d = gas_scene(nodes=M + 1, parcels=M, h=h, perturbation=PULSE(1.0))
     d["wall"] = {"model": "quasistatic", "law": "tube-law", "stiffness": 1e5}
-    _, model = make(d)
+    model = build_model(scene_of(d))
     dt, _, _ = time_steps(model)
     print(f"| quasistatic wall (R algebraic) | {model.nz} | {dt * 1e6:.0f} | {dt / base:.2f} |")
 

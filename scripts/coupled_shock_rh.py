@@ -20,14 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.run.io import RunWriter  # noqa: E402
-from varint.analysis.shock_measure import measure_coupled_shock  # noqa: E402
-
-from varint.scene.text import to_toml  # noqa: E402
-from test_coupled_shock_capturing import BENT_SPINNING, GAMMA, SOD, coupled_sod  # noqa: E402
+from varint import Simulation, build_model
+from varint.analysis.shock_measure import measure_coupled_shock
+from varint.run.io import RunWriter
+from varint.scene.standard import BENT_SPINNING, SOD, SOD_GAMMA, coupled_sod, scene_of
 
 T_MEASURE = 0.15
 #: parcels either side of the steepest jump at which the two states are read (the first is the main one)
@@ -36,7 +32,7 @@ OFFSETS = (4, 6, 8, 12)
 WINDOW = (0.55, 0.95)
 #: the cases: a stiff (EA = 1e4 N, stretched 1e-4 by the gas) and a soft (EA = 5 N, stretched ~7 %) tube, bent and
 #: spinning and translating or straight and free; the stiff straight tube held at both ends (the method's floor); and
-#: the bent spinning tube with a dynamic wall (tests/test_coupled_shock_capturing.py WALL: swollen ~0.8 % by the gas)
+#: the bent spinning tube with a dynamic wall (varint.scene.standard.SOD_WALL: swollen ~0.8 % by the gas)
 CASES = {
     "bent spinning": dict(initial=BENT_SPINNING),
     "bent soft": dict(initial=BENT_SPINNING, axial_stiffness=5.0),
@@ -51,14 +47,14 @@ T_AVERAGE = 0.008
 
 
 def run(M, tmp, initial=BENT_SPINNING, ends=("free", "free"), label="bent spinning", axial_stiffness=None, wall=None):
-    cmax = math.sqrt(GAMMA * SOD[0][2] / SOD[0][0])
+    cmax = math.sqrt(SOD_GAMMA * SOD[0][2] / SOD[0][0])
     n = int(math.ceil(T_MEASURE * M * cmax / 0.5))
     h = T_MEASURE / n
     SPAN = int(round(T_SPAN / h))
     d = coupled_sod(M=M, h=h, end=T_MEASURE + SPAN * h, initial=initial, ends=ends, wall=wall)
     if axial_stiffness is not None:
         d["rod"]["axial_stiffness"] = axial_stiffness
-    scene = parse_scene(to_toml(d))
+    scene = scene_of(d)
     model = build_model(scene)
     sim = Simulation(model)
     m0 = sim.monitors()

@@ -1,5 +1,6 @@
-"""The periodic flowing pipe (tests/test_flowing_pipe.py): its space-discrete linearisation, time-domain runs of
-varint against it, and the runs behind docs/theory.md §10.11 and §12 ("the flowing lattice").
+"""The periodic flowing pipe (varint.scene.standard.periodic_pipe_scene, tests/test_flowing_pipe.py): its space-discrete
+linearisation, time-domain runs of varint against it, and the runs behind docs/theory.md §10.11 and §12 ("the flowing
+lattice").
 
     python scripts/flowing_pipe_linear.py                 # averaged lattice linearisation vs the continuum (1 s)
     python scripts/flowing_pipe_linear.py --runs          # varint time domain vs both (about 2 min)
@@ -18,15 +19,16 @@ varint run.
 
 import argparse
 import math
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+from varint.analysis.signals import dominant_frequency, two_frequency_fit
+from varint.exact.beams import flowing_pipe_critical_speed, flowing_pipe_waves
+from varint.scene.standard import (FLOWING_PIPE_DENSITY, FLOWING_PIPE_RADIUS, FLOWING_PIPE_SECTION, FLOWING_PIPE_STEP,
+                                   FLOWING_PIPE_WALL, periodic_pipe_critical_speed)
 
-from varint.exact.beams import flowing_pipe_critical_speed, flowing_pipe_waves  # noqa: E402
+from _runs import periodic_pipe_run
 
 EI, KGA, RHOA, RHOI, M = 1.0, 400.0, 1.0, 1e-4, 1.0
 K = 2.0 * math.pi
@@ -121,15 +123,14 @@ def table_linear():
 
 
 def table_runs():
-    import test_flowing_pipe as T
-
-    Uc = T.critical_speed()
+    Uc = periodic_pipe_critical_speed()
     print(f"{'U/U_c':>6} {'el':>3} {'amp':>6}  {'varint run':>36}  {'lattice':>36}  {'continuum':>36}  s")
     for f, n, amp, dom in ((0.5, 10, 1e-5, False), (0.5, 20, 1e-5, False), (0.9, 20, 1e-5, False),
                            (1.1, 10, 1e-6, True), (1.1, 20, 1e-6, True), (0.5, 10, 1e-3, False), (1.1, 10, 1e-3, False)):
         t0 = time.time()
-        res = T.run(f * Uc, n + 1, 2 * n, amplitude=amp)
-        w = (T.dominant(res["c"][600:], T.H),) if dom else T.pencil(res["c"], T.H)
+        res = periodic_pipe_run(f * Uc, n + 1, 2 * n, amplitude=amp)
+        h = FLOWING_PIPE_STEP
+        w = (dominant_frequency(res["c"][600:], h),) if dom else two_frequency_fit(res["c"], h)
         lw, ex = lattice_waves(n, f * Uc), continuum(f * Uc)
         if dom:
             lw, ex = (max(lw, key=lambda z: z.imag),), (max(ex, key=lambda z: z.imag),)
@@ -139,32 +140,32 @@ def table_runs():
 
 
 def saturation():
-    import test_flowing_pipe as T
-
-    Uc = T.critical_speed()
-    area = math.pi * T.RADIUS ** 2
-    w = T.WALL
-    stiff = w["youngs_modulus"] * w["thickness"] / (2 * T.RADIUS * (1 - w["poisson_ratio"] ** 2))  # -R dp/dR / 2
+    Uc = periodic_pipe_critical_speed()
+    area = math.pi * FLOWING_PIPE_RADIUS ** 2
+    w, h = FLOWING_PIPE_WALL, FLOWING_PIPE_STEP
+    R = FLOWING_PIPE_RADIUS
+    stiff = w["youngs_modulus"] * w["thickness"] / (2 * R * (1 - w["poisson_ratio"] ** 2))  # -R dp/dR / 2
     for f, n in ((1.1, 10), (1.1, 20), (1.2, 10)):
         U = f * Uc
-        res = T.run(U, n + 1, 2 * n, steps=900, amplitude=1e-3)
+        res = periodic_pipe_run(U, n + 1, 2 * n, steps=900, amplitude=1e-3)
         i = int(np.argmin(res["pressure"]))
         dp = -M * (U * U - Uc * Uc) / area
         W = 2.0 / K * math.sqrt(-dp / stiff)
-        print(f"U = {f} U_c, {n} el: min mean p - p_ext = {res['pressure'][i]:.0f} Pa at t = {i * T.H:.3f} s "
+        print(f"U = {f} U_c, {n} el: min mean p - p_ext = {res['pressure'][i]:.0f} Pa at t = {i * h:.3f} s "
               f"(predicted -M (U^2 - U_c^2)/A = {dp:.0f} Pa); wave amplitude there {2 * res['amplitude'][i]:.2e} m "
               f"(predicted {W:.2e} m); at the end {2 * res['amplitude'][-1]:.2e} m", flush=True)
 
 
 def _scene(U, nodes, parcels, h, steps, E=2e11, wall_model="quasistatic", fluid="incompressible"):
-    import test_flowing_pipe as T
+    """The periodic pipe of varint.scene.standard.periodic_pipe_scene at rest laterally, with the wall's model and
+    Young's modulus and the liquid (incompressible or barotropic) chosen."""
     from varint.scene.text import to_toml
     from varint import parse_scene
 
-    d = {"title": "periodic flowing pipe", "tube": {"length": 1.0, "nodes": nodes, "radius": T.RADIUS},
-         "rod": dict(T.SECTION, dimension=2, ends={"s0": "periodic", "sL": "periodic"}),
-         "wall": dict(T.WALL, model=wall_model, youngs_modulus=E),
-         "fluid": {"model": fluid, "density": T.RHO_F, "pressure": 1e5, "parcels": parcels, "velocity": U,
+    d = {"title": "periodic flowing pipe", "tube": {"length": 1.0, "nodes": nodes, "radius": FLOWING_PIPE_RADIUS},
+         "rod": dict(FLOWING_PIPE_SECTION, dimension=2, ends={"s0": "periodic", "sL": "periodic"}),
+         "wall": dict(FLOWING_PIPE_WALL, model=wall_model, youngs_modulus=E),
+         "fluid": {"model": fluid, "density": FLOWING_PIPE_DENSITY, "pressure": 1e5, "parcels": parcels, "velocity": U,
                    "ends": {"s0": "periodic", "sL": "periodic"}},
          "time": {"step": h, "end": steps * h}}
     if fluid == "barotropic":
@@ -176,10 +177,9 @@ def _scene(U, nodes, parcels, h, steps, E=2e11, wall_model="quasistatic", fluid=
 def instability():
     """Runs from rest (no lateral perturbation: round-off seeds it) of the periodic flowing pipe: the growth rate
     of the pressure spread along the tube, the energy error, and whether the pattern flips sign every step."""
-    import test_flowing_pipe as T
     from varint import Simulation, build_model
 
-    Uc = T.critical_speed()
+    Uc = periodic_pipe_critical_speed()
     cases = [dict(f=0.0, n=40, P=80, h=5e-4, t=0.6), dict(f=0.5, n=40, P=80, h=5e-4, t=0.6),
              dict(f=0.5, n=40, P=80, h=1e-3, t=0.6)]
     cases += [dict(f=1.1, n=10, P=20, h=h, t=t) for h, t in ((1e-3, 0.4), (5e-4, 0.4), (2.5e-4, 0.4), (1.25e-4, 0.3),

@@ -3,7 +3,7 @@
 Run:  python scripts/general_momenta_roundoff.py [--steps 2000] [--case rod2d rod3d gas gas-g liquid] [--no-polish]
 
 Cases: the constrained (inextensible, unshearable) free rod of scripts/rod_constraint_hard_cases.py (base case,
-planar and 3D arc, midpoint, h = 5 ms), and the free gas-filled coupled tube of tests/test_coupled_tube.py
+planar and 3D arc, midpoint, h = 5 ms), and the free gas-filled coupled tube of varint.scene.standard.COUPLED_CASES
 ("gas-rigid-free-3d", 9 nodes, 12 parcels, h = 1 ms) without gravity, and with it (then P changes by exactly
 h M_tot g per step: the change from P0 + n h M_tot g is reported, and J.g), and its "liquid-rigid-free" (a liquid
 held at the levels, theory §10.12).  All step through Simulation._solve (the general Step path).
@@ -19,21 +19,19 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 from rod_stiff_diagnosis import make  # noqa: E402
 
-from varint import Simulation  # noqa: E402
+from varint import Simulation, build_model  # noqa: E402
+from varint.scene.standard import COUPLED_CASES, coupled_scene  # noqa: E402
 
 
 def model_of(case):
     if case.startswith("rod"):
         kw = dict(dim=3, curvature=(0, 1.0, 2.0)) if case == "rod3d" else {}
         return make(h=5e-3, constraint="inextensible_unshearable", **kw), 5e-3
-    from test_coupled_tube import CASES, coupled_scene
-
     name = "liquid-rigid-free" if case == "liquid" else "gas-rigid-free-3d"
-    kw = {k: v for k, v in CASES[name].items() if k != "gravity" or case == "gas-g"}
-    return coupled_scene(nodes=9, parcels=12, **kw), 1e-3
+    kw = {k: v for k, v in COUPLED_CASES[name].items() if k != "gravity" or case == "gas-g"}
+    return build_model(coupled_scene(nodes=9, parcels=12, **kw)), 1e-3
 
 
 def run(case, steps, polish=True):

@@ -8,22 +8,16 @@ Prints the worst deviations and the energy drift per decade of steps.  The rod d
 round-off of P (a lever arm); the angular momentum about the centre of mass is printed too.
 """
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from test_rod import tumbling_model  # noqa: E402
-
-from varint import Simulation  # noqa: E402
+from varint import Simulation, build_model
+from varint.scene.standard import tumbling_scene
 
 
 def main(steps, at_rest=False, h=1e-2, measure="reference"):
-    model = tumbling_model(h=h, at_rest=at_rest, measure=measure)
+    model = build_model(tumbling_scene(h=h, at_rest=at_rest, measure=measure))
     sim = Simulation(model)
     sim.step()
     m1 = sim.monitors()

@@ -30,7 +30,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT.parent / "tests"))
 
 from bench_pyelastica import reference  # noqa: E402
 from bench_rod_step_fast import E, cantilever  # noqa: E402

@@ -22,9 +22,12 @@ import time
 import numpy as np
 
 from varint import Simulation, build_model, parse_scene
+from varint.analysis.shock_measure import density_l1
 from varint.exact.shocks import RiemannSolution
 
 GAMMA = 1.4
+#: the density's L1 error is integrated on SAMPLES - 1 equal sub-intervals of [0, 1] (density_l1)
+SAMPLES = 400001
 CASES = {
     "sod": ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1), 0.2),
     "ratio100": ((1.0, 0.0, 10.0), (0.125, 0.0, 0.1), 0.1),
@@ -66,14 +69,6 @@ def scene_text(M, left, right, end, cfl, cQ, cL):
                         ur=right[1], pr=right[2], M=M, h=end / n, end=end, cQ=cQ, cL=cL), n
 
 
-def density_l1(s, rho, exact, t, samples=400001):
-    """L1 distance on [0, 1] between the parcels' piecewise-constant density and the exact density."""
-    x = np.linspace(0.0, 1.0, samples)
-    xc = 0.5 * (x[1:] + x[:-1])
-    k = np.clip(np.searchsorted(s, xc) - 1, 0, len(rho) - 1)
-    return float(np.sum(np.abs(rho[k] - exact.sample(xc, t, 0.5)[0])) * (x[1] - x[0]))
-
-
 def contact_cells(s, rho, exact, t, margin=0.05):
     """Parcels near the contact whose density lies strictly inside its jump (by ``margin`` of the jump).
 
@@ -111,7 +106,7 @@ def run(case, M, cfl=0.5, cQ=1.0, cL=0.5, limiter=False):
     cfg = t.config(np.concatenate([st.q[model.tube_q], st.lam]))
     rho, p, _ = t.fluid_fields(cfg, st.p[model.tube_p])
     exact = RiemannSolution(left, right, GAMMA)
-    return {"case": case, "N": M, "steps": n, "l1": density_l1(cfg.s, rho, exact, end), "wall": wall,
+    return {"case": case, "N": M, "steps": n, "l1": density_l1(cfg.s, rho, exact, end, SAMPLES), "wall": wall,
             "energy": abs(mon["energy"] - E0) / abs(E0), "rho_min": float(rho.min()), "p_min": float(p.min()),
             "iterations": sim.stats.total_iterations / n, "contact": contact_cells(cfg.s, rho, exact, end)}
 

@@ -2,7 +2,7 @@
 
 Run:  python scripts/slosh_long_run.py [STEPS]      (default 10^5 midpoint steps of h = 1e-5 s, 1 s,
       ~170 wave periods; about 40 s on one core)
-The test suite runs the first 10^4 steps of the same scene (tests/test_conservation.py); this prints
+The test suite runs the first 10^4 steps of the same scene (tests/test_conservation.py, scripts/_runs.py); this prints
 what only the long run shows: the largest relative energy error, the mean error of each quarter after
 the first and the trend fitted over the last three quarters (a secular drift would make the quarter
 means walk and the trend approach the bound), the mass deviation and the number of Jacobians.
@@ -11,12 +11,10 @@ Exit status 1 if the run breaks the bound 1.5e-9 or shows a drift above a tenth 
 
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+from varint.analysis.signals import drift_statistics
 
-from test_conservation import BOUND_10PCT, drift_statistics, sloshing_record  # noqa: E402
+from _runs import BOUND_10PCT, sloshing_record
 
 
 def main(steps):

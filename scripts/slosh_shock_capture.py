@@ -26,30 +26,21 @@ Run:  python scripts/slosh_shock_capture.py [--steps 2000] [--h 1e-5] [--parcels
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from varint.scene.standard import gas_scene  # noqa: E402
-from helpers import make  # noqa: E402
-
-from varint import Simulation  # noqa: E402
+from varint import Simulation, build_model
+from varint.scene.standard import scene_of, sloshing_scene
 
 P0 = 101325.0
 
 
 def scene(amplitude, h=1e-5, parcels=16, shock=None):
-    """The sloshing scene at ``amplitude`` (fraction of P0); ``shock`` the [shock_capturing] keys or None."""
-    d = gas_scene(nodes=parcels + 1, parcels=parcels, h=h,
-                  perturbation=[{"field": "pressure", "shape": "cosine", "amplitude": amplitude * P0, "wavelength": 2.0}])
-    if shock is not None:
-        d["shock_capturing"] = shock
-    return make(d)[1]
+    """The model of the sloshing scene (varint.scene.standard.sloshing_scene) at ``amplitude`` (fraction of P0);
+    ``shock`` the [shock_capturing] keys or None."""
+    extra = {} if shock is None else {"shock_capturing": shock}
+    return build_model(scene_of(sloshing_scene(h, amplitude=amplitude, parcels=parcels, **extra)))
 
 
 def _internal(t, V, S):

@@ -25,22 +25,18 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from varint import Simulation, build_model, parse_scene
+from varint.exact.shocks import ideal_gas_state, relative_residuals, rh_residuals, traveling_shock
+from varint.scene.derived import tube_of_scene
+from varint.scene.text import to_toml
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from varint.scene.text import to_toml  # noqa: E402
-
-from varint import Simulation, build_model, parse_scene  # noqa: E402
-from varint.exact.shocks import ideal_gas_state, relative_residuals, rh_residuals, traveling_shock  # noqa: E402
-from varint.scene.derived import tube_of_scene  # noqa: E402
-
 EXAMPLE = ROOT / "examples" / "rubber_tube_traveling_shock.toml"
 SPEED = 447.0
 X0 = 1.0

@@ -7,7 +7,6 @@ initial state; the error is max |q(T) - q_ref(T)| / (L / M) against a DOP853 ref
 Also writes docs/work_precision.png.  Run:  python scripts/work_precision.py
 """
 
-import sys
 import time
 from pathlib import Path
 
@@ -15,12 +14,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-from varint.scene.standard import gas_scene  # noqa: E402
-from helpers import make  # noqa: E402
+from varint import Simulation, build_model
+from varint.scene.standard import gas_scene, scene_of
 
-from varint import Simulation  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 M_PARCELS = 64
 T_END = 4e-3
@@ -28,7 +25,7 @@ PULSE = [{"field": "pressure", "shape": "gaussian", "amplitude": 5e3, "center": 
 
 
 def model_for(h, scheme):
-    return make(gas_scene(nodes=M_PARCELS + 1, parcels=M_PARCELS, h=h, perturbation=PULSE, scheme=scheme))[1]
+    return build_model(scene_of(gas_scene(nodes=M_PARCELS + 1, parcels=M_PARCELS, h=h, perturbation=PULSE, scheme=scheme)))
 
 
 def rhs_factory(model):

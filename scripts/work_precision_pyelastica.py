@@ -30,7 +30,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "scripts"))
-sys.path.insert(0, str(ROOT / "tests"))
 
 from bench_pyelastica import TIP, largest_stable_dt, pyelastica_cantilever, reference, varint_cantilever  # noqa: E402
 from varint.analysis.signals import zero_crossing_frequency  # noqa: E402

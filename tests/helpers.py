@@ -2,8 +2,10 @@
 
 import numpy as np
 
-from varint import build_model, parse_scene
+from varint import Simulation, build_model, parse_scene
 from varint.analysis.signals import zero_crossing_frequency
+from varint.lattice.lie import cay
+from varint.scene.standard import liquid_cantilever_scenes
 from varint.scene.text import to_toml
 
 
@@ -15,8 +17,6 @@ def make(d):
 
 def tip_frequency(model, steps, scheme=None):
     """Angular frequency of a rod's tip motion in y over ``steps`` steps, from its zero crossings."""
-    from varint import Simulation
-
     sim = Simulation(model, scheme=scheme)
     t, y = np.empty(steps), np.empty(steps)
     for i in range(steps):
@@ -145,3 +145,52 @@ def invariant_error(name, model, mons, fields):
         Jp = J - np.cross(p0, P)
         return float(np.max(np.abs((Jp - Jp[0]) @ axis)) / Jscale), MOMENTUM_RTOL
     raise AssertionError(f"declared invariant {name!r} has no check in tests/helpers.py: add one")
+
+
+def _release_from_mode(model, shape_of, amp=1e-4):
+    """Start ``model``'s rod at rest in the first mode shape of ``shape_of`` (a rod model), tip amplitude ``amp``."""
+    from varint.analysis.rod_modes import rod_modes
+
+    _, X = rod_modes(shape_of, count=1, vectors=True)
+    rod = model.rod
+    u = np.zeros((model.N + 1, 6))
+    u[rod.mask] = X[:, 0]
+    u *= amp / np.max(np.abs(u[:, :3]))
+    rod.set_configuration(rod.Lam0 @ cay(u[:, 3:]), rod.r0 + u[:, :3], rest=True)
+
+
+def liquid_cantilever(N, h, R=0.01, L=1.0, rho_f=1000.0, scheme="midpoint"):
+    """The water-filled cantilever of docs/theory.md §10.7a and the rod lattice with the liquid's mass rho_f A_f added
+    to rho A (varint.scene.standard.liquid_cantilever_scenes), both released from the latter's first mode.  Returns
+    (coupled, heavy, Timoshenko's first frequency with that mass)."""
+    from varint.exact.beams import timoshenko_cantilever
+
+    coupled_scene, heavy_scene = liquid_cantilever_scenes(N, h, R=R, L=L, rho_f=rho_f, scheme=scheme)
+    coupled, heavy = build_model(coupled_scene), build_model(heavy_scene)
+    _release_from_mode(heavy, heavy)
+    _release_from_mode(coupled, heavy)
+    r = heavy_scene.rod
+    f_beam = timoshenko_cantilever(r.bending_stiffness, r.shear_stiffness, r.mass_per_length, r.rotary_inertia, L,
+                                   count=1)[0]
+    return coupled, heavy, f_beam
+
+
+def shock_tube_fields(sim):
+    """(labels s, density, pressure, velocity) of a straight tube's fluid, from the simulation's state."""
+    m, st = sim.model, sim.state
+    t = m.tube
+    cfg = t.config(np.concatenate([st.q[m.tube_q], st.lam[m.tube_lam]]))
+    rho, p, u = t.fluid_fields(cfg, st.p[m.tube_p])
+    return cfg.s, rho, p, u
+
+
+def run_to_end(d, check=None):
+    """The Simulation of scene dict ``d`` run to its time.end; ``check(sim, state before the step)`` after each step."""
+    sim = Simulation(make(d)[1])
+    n = int(round(d["time"]["end"] / d["time"]["step"]))
+    for _ in range(n):
+        before = sim.state.copy()
+        sim.step()
+        if check is not None:
+            check(sim, before)
+    return sim

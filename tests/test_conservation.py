@@ -5,50 +5,12 @@ import pytest
 
 from varint import Simulation
 
-from varint.scene.standard import gas_scene
+from varint.scene.standard import gas_scene, sloshing_scene
 from helpers import make
 
-P0 = 101325.0
-#: relative energy-error bound of the 10 % sloshing run (measured 8.19e-10 over 10^4 and 10^5 steps, docs/validation.md)
-BOUND_10PCT = 1.5e-9
-SLOSH = [{"field": "pressure", "shape": "cosine", "amplitude": 0.2 * P0, "wavelength": 2.0}]
-
-
-def _energy_series(sim, steps, every=10):
-    E, t = [], []
-    for n in range(steps):
-        sim.step()
-        if (n + 1) % every == 0:
-            E.append(sim.monitors()["energy"])
-            t.append(sim.state.t)
-    return np.array(t), np.array(E)
-
-
-def _sloshing(h, amplitude=0.2):
-    return make(gas_scene(nodes=17, parcels=16, h=h, perturbation=[dict(SLOSH[0], amplitude=amplitude * P0)]))
-
-
-def sloshing_record(steps, every=50):
-    """Closed dynamic-wall tube, 10 % pressure sloshing, midpoint steps of h = 1e-5 s (~1.7e-3 s per wave period).
-
-    At 20 % the wave steepens towards a shock within 10^5 steps and the energy error creeps
-    (docs/validation.md); 10 % is nonlinear (harmonics, wall-fluid exchange) and stays smooth.
-    Returns (simulation, times, relative energy errors, initial mass).  Also used by
-    scripts/slosh_long_run.py for the 10^5-step run.
-    """
-    _, model = _sloshing(1e-5, amplitude=0.1)
-    sim = Simulation(model)
-    m0 = sim.monitors()["mass"]
-    t, E = _energy_series(sim, steps, every=every)
-    return sim, t, (E - E[0]) / abs(E[0]), m0
-
-
-def drift_statistics(t, err):
-    """Bound, mean error of each quarter after the first, and the trend fitted over the last three quarters."""
-    q = len(err) // 4
-    means = [float(np.mean(err[i * q:(i + 1) * q])) for i in range(1, 4)]
-    slope = np.polyfit(t[q:], err[q:], 1)[0]
-    return float(np.max(np.abs(err))), means, float(slope * (t[-1] - t[q]))
+# the closed rubber tube sloshing at 10 %, its energy series and bound: scripts/_runs.py, shared with
+# scripts/slosh_long_run.py (10^5 steps)
+from _runs import BOUND_10PCT, energy_series, sloshing_record
 
 
 def test_nonlinear_sloshing_energy_bounded_over_1e4_steps():
@@ -68,9 +30,9 @@ def test_nonlinear_sloshing_energy_bounded_over_1e4_steps():
 def test_energy_error_bound_shrinks_fourfold_when_h_halves():
     bounds = []
     for h in (4e-5, 2e-5, 1e-5):
-        _, model = _sloshing(h)
+        _, model = make(sloshing_scene(h))
         sim = Simulation(model)
-        t, E = _energy_series(sim, int(round(0.02 / h)), every=1)
+        t, E = energy_series(sim, int(round(0.02 / h)), every=1)
         bounds.append(np.max(np.abs(E - E[0])))
     r1, r2 = bounds[0] / bounds[1], bounds[1] / bounds[2]
     assert 3.2 < r1 < 4.8 and 3.2 < r2 < 4.8, bounds
@@ -79,9 +41,9 @@ def test_energy_error_bound_shrinks_fourfold_when_h_halves():
 def test_trapezoidal_energy_bounded_and_second_order():
     bounds = []
     for h in (1e-5, 5e-6):
-        _, model = make(gas_scene(nodes=17, parcels=16, h=h, perturbation=SLOSH, scheme="trapezoidal"))
+        _, model = make(sloshing_scene(h, scheme="trapezoidal"))
         sim = Simulation(model)
-        t, E = _energy_series(sim, int(round(0.01 / h)), every=1)
+        t, E = energy_series(sim, int(round(0.01 / h)), every=1)
         bounds.append(np.max(np.abs(E - E[0])))
     assert 3.2 < bounds[0] / bounds[1] < 4.8, bounds
 

@@ -5,55 +5,29 @@ Space: the lattice is second order (linear radius interpolant, exact parcel volu
 import numpy as np
 import pytest
 
-from varint import Simulation
+from varint import Simulation, build_model
+from varint.analysis.signals import observed_orders
 from varint.schemes.midpoint import make_scheme
+from varint.scene.standard import GAS, coupled_scene, rod_scene
 
-from varint.scene.standard import gas_scene
-from helpers import make
+# the smooth wave of varint.scene.standard.smooth_wave_scene run to T, and its labels' positions and radii at three
+# probes (present on every lattice): scripts/_runs.py, shared with scripts/validation_report.py
+from _runs import gas_final_state, gas_observables
 
 pytestmark = pytest.mark.convergence
-
-P0 = 101325.0
-PERT = [{"field": "pressure", "shape": "cosine", "amplitude": 0.05 * P0, "wavelength": 2.0},
-        # sin(2 pi s): vanishes at the closed ends, so the data are compatible with the walls
-        {"field": "velocity", "shape": "cosine", "amplitude": 5.0, "wavelength": 1.0, "phase": -np.pi / 2}]
-
-
-def _final_state(parcels, h, T, scheme="midpoint", wall=True):
-    _, model = make(gas_scene(nodes=parcels + 1, parcels=parcels, h=h, perturbation=PERT, scheme=scheme, wall=wall))
-    sim = Simulation(model)
-    n = int(round(T / h))
-    for _ in range(n):
-        sim.step()
-    return model, sim
-
-
-def _observables(model, sim, probes=(0.25, 0.5, 0.75)):
-    """Positions of the labels that start at the probe points and radii at those nodes: present on every lattice."""
-    cfg = model.tube.config(np.concatenate([sim.state.q, sim.state.lam]))
-    M, N = model.tube.M, model.N
-    out = [cfg.s[int(round(p * M))] for p in probes]
-    if model.tube.has_wall:
-        out += [cfg.R[int(round(p * N))] for p in probes]
-    return np.array(out)
-
-
-def _orders(errors):
-    e = np.asarray(errors)
-    return np.log2(e[:-1] / e[1:])
 
 
 @pytest.mark.parametrize("scheme", ["midpoint", "trapezoidal"])
 def test_order_two_in_time(scheme):
     T = 2e-3
     hs = [T / 40, T / 80, T / 160]
-    ref_model, ref = _final_state(16, T / 1280, T, scheme)
-    ref_obs = _observables(ref_model, ref)
+    ref_model, ref = gas_final_state(16, T / 1280, T, scheme)
+    ref_obs = gas_observables(ref_model, ref)
     errs = []
     for h in hs:
-        m, s = _final_state(16, h, T, scheme)
-        errs.append(np.max(np.abs(_observables(m, s) - ref_obs)))
-    orders = _orders(errs)
+        m, s = gas_final_state(16, h, T, scheme)
+        errs.append(np.max(np.abs(gas_observables(m, s) - ref_obs)))
+    orders = observed_orders(errs)
     declared = make_scheme(ref_model, hs[0], scheme).order
     assert declared == 2
     assert np.all(np.abs(orders - declared) < 0.2), (errs, orders)
@@ -62,33 +36,26 @@ def test_order_two_in_time(scheme):
 @pytest.mark.parametrize("wall", [True, False], ids=["dynamic-wall", "rigid"])
 def test_order_two_in_space(wall):
     T, h = 1.5e-3, 2.5e-6
-    ref_model, ref = _final_state(256, h, T, wall=wall)
-    ref_obs = _observables(ref_model, ref)
+    ref_model, ref = gas_final_state(256, h, T, wall=wall)
+    ref_obs = gas_observables(ref_model, ref)
     errs = []
     for M in (16, 32, 64):
-        m, s = _final_state(M, h, T, wall=wall)
-        errs.append(np.max(np.abs(_observables(m, s) - ref_obs)))
-    orders = _orders(errs)
+        m, s = gas_final_state(M, h, T, wall=wall)
+        errs.append(np.max(np.abs(gas_observables(m, s) - ref_obs)))
+    orders = observed_orders(errs)
     assert np.all(np.abs(orders - 2.0) < 0.2), (errs, orders)
 
 
 def _coupled_and_constrained_final(kind, h, T):
     """Final rod positions and label positions (coupled) after T, for the time-order tests."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_coupled_tube import GAS, coupled_scene
-    from test_rod import rod_scene
-    from varint import build_model
-
     # a soft section with heavy frames, so that every mode of the lattice is resolved at the coarsest step
     # (h omega_max ~ 1): an order is only seen where the motion is resolved
     soft = {"mass_per_length": 0.5, "rotary_inertia": 1e-2, "bending_stiffness": 5.0, "torsional_stiffness": 4.0,
             "axial_stiffness": 200.0, "shear_stiffness": 200.0}
     if kind == "coupled":
-        model = coupled_scene(nodes=7, parcels=8, fluid=GAS, h=h, section=soft, initial={"curvature": [0.3, 1.0, 0.5],
-                              "angular_velocity": [0.0, 0.0, 3.0]}, velocity=2.0, gravity=[0.0, -9.81, 0.0])
+        model = build_model(coupled_scene(nodes=7, parcels=8, fluid=GAS, h=h, section=soft,
+                                          initial={"curvature": [0.3, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]},
+                                          velocity=2.0, gravity=[0.0, -9.81, 0.0]))
     else:
         scene = rod_scene(nodes=9, h=h, section=soft, initial={"curvature": [0.0, 1.0, 0.5],
                                                                "angular_velocity": [0.0, 0.0, 3.0]})
@@ -112,5 +79,5 @@ def test_coupled_tube_and_constrained_rod_are_second_order_in_time(kind):
     ref = _coupled_and_constrained_final(kind, T / 640, T)
     # measured orders: coupled 1.94, 2.00; constrained 2.02, 2.02
     errs = [np.max(np.abs(_coupled_and_constrained_final(kind, T / n, T) - ref)) for n in (20, 40, 80)]
-    orders = _orders(errs)
+    orders = observed_orders(errs)
     assert np.all(np.abs(orders - 2) < 0.25), (errs, orders)

@@ -17,38 +17,8 @@ from varint.terms.rod import pack_level, unpack_level
 from varint.exact.shocks import RiemannSolution
 from varint.terms.step import Derivatives
 
+from varint.scene.standard import BENT_SPINNING, SOD, SOD_GAMMA as GAMMA, coupled_sod
 from varint.scene.text import to_toml
-
-GAMMA = 1.4
-SOD = ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1))
-#: a soft hose (bending slow against the gas) that is axially stiff (the gas barely stretches it)
-SOFT = {"mass_per_length": 1.0, "rotary_inertia": 1e-3, "bending_stiffness": 0.05, "torsional_stiffness": 0.04,
-        "axial_stiffness": 1e4, "shear_stiffness": 8e3}
-BENT_SPINNING = {"curvature": [0.0, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 2.0], "velocity": [0.3, -0.2, 0.1]}
-
-
-#: a soft linear wall for the 1 m^2 tube (the gas swells it by ~3 %; radial frequency ~6 rad/s)
-WALL = {"law": "linear", "thickness": 1.0e-3, "density": 1000.0, "youngs_modulus": 1.0e4, "poisson_ratio": 0.45}
-
-
-def coupled_sod(M=50, nodes=11, h=2e-3, end=0.2, initial=None, shock=None, ends=("free", "free"), right=SOD[1],
-                wall=None):
-    """Sod's tube (1 m, 1 m^2, p_ext = 0) on a rod; the diaphragm at s = 0.5; ``wall``: keys over WALL."""
-    rod = dict(SOFT, dimension=3, ends={"s0": ends[0], "sL": ends[1]})
-    if initial:
-        rod["initial"] = initial
-    fluid = {"model": "ideal-gas", "gamma": GAMMA, "density": SOD[0][0], "pressure": SOD[0][2], "parcels": M}
-    if right is not None:
-        fluid["initial"] = [{"from": 0.5, "to": 1.0, "density": right[0], "pressure": right[2]}]
-    if ends[0] == "periodic":
-        fluid["ends"] = {"s0": "periodic", "sL": "periodic"}
-    d = {"title": "coupled sod", "tube": {"length": 1.0, "nodes": nodes, "radius": 1.0 / math.sqrt(math.pi)},
-         "rod": rod, "fluid": fluid, "time": {"step": h, "end": end}, "environment": {"external_pressure": 0.0}}
-    if wall is not None:
-        d["wall"] = dict(WALL, **wall)
-    if shock is not False:
-        d["shock_capturing"] = shock or {}
-    return d
 
 
 def build(d):
@@ -208,7 +178,9 @@ def test_straight_coupled_tube_at_rest_reproduces_sod():
     accelerating frame), axially stiff (the gas stretches it by 1e-4), is the straight tube: the L1 error of the
     density against the exact Riemann solution at N = 100 is the straight tube's (6.4e-3 there,
     tests/test_shock_capturing.py) within 2 % (measured 6.43e-3 both); energy to 1e-6 of E."""
-    from test_shock_capturing import density_l1, fields, run, tube_scene
+    from helpers import run_to_end, shock_tube_fields
+    from varint.analysis.shock_measure import density_l1
+    from varint.scene.standard import shock_tube_scene
 
     M, end = 100, 0.2
     cmax = math.sqrt(GAMMA * SOD[0][2] / SOD[0][0])
@@ -225,7 +197,7 @@ def test_straight_coupled_tube_at_rest_reproduces_sod():
     f = sim.fields()
     exact = RiemannSolution(*SOD, GAMMA)
     err = density_l1(f["fluid/s"], f["fluid/density"], exact, end)
-    s, rho, _, _ = fields(run(tube_scene(M)))
+    s, rho, _, _ = shock_tube_fields(run_to_end(shock_tube_scene(M)))
     straight = density_l1(s, rho, exact, end)
     assert err < 7.5e-3, err
     assert abs(err / straight - 1.0) < 0.02, (err, straight)

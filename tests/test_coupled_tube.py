@@ -14,56 +14,12 @@ import math
 import numpy as np
 import pytest
 
-from varint import Simulation, build_model, parse_scene
-from varint.exact.beams import timoshenko_cantilever
+from varint import Simulation, build_model
 from varint.lattice.lie import cay
 from varint.terms.rod import pack_level, unpack_level
 
-from helpers import momentum_drift, tip_frequency
-from varint.scene.text import to_toml
-
-SECTION = {"mass_per_length": 0.5, "rotary_inertia": 1e-4, "bending_stiffness": 5.0, "torsional_stiffness": 4.0,
-           "axial_stiffness": 1e4, "shear_stiffness": 8e3}
-GAS = {"model": "ideal-gas", "gamma": 1.4, "density": 1.2, "pressure": 1.0e5}
-LIQUID = {"model": "incompressible", "density": 1000.0, "pressure": 1.0e5}
-BARO = {"model": "barotropic", "density": 1000.0, "pressure": 1.0e5, "bulk_modulus": 2.0e7}
-WALL = {"law": "linear", "thickness": 1.0e-3, "density": 1200.0, "youngs_modulus": 5.0e6, "poisson_ratio": 0.45}
-
-
-def coupled_scene(nodes=7, parcels=8, fluid=GAS, wall=None, ends=("free", "free"), initial=None, gravity=None,
-                  dimension=3, h=1e-3, end=1.0, velocity=0.0, radius=0.02, section=None, length=1.0, scheme="midpoint",
-                  p_ext=None):
-    rod = dict(section or SECTION, dimension=dimension, ends={"s0": ends[0], "sL": ends[1]})
-    if initial:
-        rod["initial"] = initial
-    d = {"title": "coupled", "tube": {"length": length, "nodes": nodes, "radius": radius}, "rod": rod,
-         "fluid": dict(fluid, parcels=parcels, velocity=velocity), "time": {"step": h, "end": end, "scheme": scheme}}
-    if ends == ("periodic", "periodic"):  # a periodic tube: the rod and the fluid both
-        d["fluid"]["ends"] = {"s0": "periodic", "sL": "periodic"}
-    if wall is not None:
-        d["wall"] = dict(WALL, **wall)
-    if gravity is not None:
-        d["environment"] = {"gravity": gravity}
-    if p_ext is not None:
-        d.setdefault("environment", {})["external_pressure"] = p_ext
-    return build_model(parse_scene(to_toml(d)))
-
-
-CASES = {
-    "gas-rigid-free-3d": dict(fluid=GAS, initial={"curvature": [0.3, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]},
-                              velocity=2.0, gravity=[0.0, -9.81, 0.0]),
-    "gas-dynamic-clamped": dict(fluid=GAS, wall={"model": "dynamic"}, ends=("clamped", "free"),
-                                initial={"curvature": [0.0, 1.0, 0.5]}, velocity=1.0),
-    "liquid-quasistatic-pinned": dict(fluid=LIQUID, wall={"model": "quasistatic"}, ends=("pinned", "pinned"),
-                                      initial={"curvature": [0.0, 0.0, 0.8]}, velocity=0.5),
-    "liquid-rigid-free": dict(fluid=LIQUID, initial={"curvature": [0.0, 0.6, 0.0], "angular_velocity": [0.0, 0.0, 2.0]}),
-    "barotropic-dynamic-planar": dict(fluid=BARO, wall={"model": "dynamic"}, dimension=2, ends=("clamped", "free"),
-                                      initial={"curvature": [0.0, 0.0, 1.0]}, velocity=1.0, gravity=[0.0, -9.81, 0.0]),
-    "gas-dynamic-periodic": dict(fluid=GAS, wall={"model": "dynamic"}, ends=("periodic", "periodic"), velocity=2.0,
-                                 initial={"angular_velocity": [3.0, 0.0, 0.0]}, gravity=[0.0, -9.81, 0.0]),
-    "liquid-quasistatic-periodic": dict(fluid=LIQUID, wall={"model": "quasistatic"}, ends=("periodic", "periodic"),
-                                        velocity=1.0),
-}
+from helpers import liquid_cantilever, momentum_drift, tip_frequency
+from varint.scene.standard import COUPLED_CASES as CASES, GAS, coupled_scene
 
 
 def _periodic_image(model, Lam, r):
@@ -107,7 +63,7 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
     s, R) and of lam_2; each block to 1e-6 of its own size.  A liquid held at the levels (SHAKE, theory §10.12:
     L_d(q_n, q_{n+1}, mu_n) = L_d' + h mu_n . (V(q_n) - V0)) has as its multiplier rows the next step's
     D_mu L_d(q_2, ., mu) = h (V(q_2) - V0), checked against differences of L_d(q_2, q_2, lam) in lam."""
-    model = coupled_scene(**CASES[case])
+    model = build_model(coupled_scene(**CASES[case]))
     sim = Simulation(model)
     step = sim.stepper.action
     rng = np.random.default_rng(5)
@@ -186,7 +142,7 @@ def test_residual_is_the_gradient_of_the_discrete_action(case):
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_newton_jacobian_is_the_derivative_of_the_residual(case):
-    model = coupled_scene(**CASES[case])
+    model = build_model(coupled_scene(**CASES[case]))
     sim = Simulation(model)
     step = sim.stepper.action
     rng = np.random.default_rng(8)
@@ -214,7 +170,8 @@ def test_free_gas_filled_tube_keeps_its_momenta_to_round_off_and_its_energy_boun
     """A bent free tube, spinning, with the gas sloshing along it (fluid.velocity = 2 m/s): P and J (about
     the origin and the centre of mass) to round-off over 150 steps, energy error bounded, mass and
     entropy exact."""
-    model = coupled_scene(nodes=9, parcels=12, **{k: v for k, v in CASES["gas-rigid-free-3d"].items() if k != "gravity"})
+    model = build_model(coupled_scene(nodes=9, parcels=12,
+                                      **{k: v for k, v in CASES["gas-rigid-free-3d"].items() if k != "gravity"}))
     sim = Simulation(model)
     N = model.N
     m0 = sim.monitors()
@@ -245,8 +202,8 @@ def test_free_gas_filled_tube_keeps_its_momenta_to_round_off_and_its_energy_boun
 def test_gravity_changes_the_momentum_by_exactly_h_mtot_g():
     """docs/theory.md §10.6: P_{n+1} - P_n = h M_tot g with M_tot = rho A L + sum_k m_k, whatever the labels do."""
     g = np.array([0.0, -9.81, 2.0])
-    model = coupled_scene(nodes=7, parcels=9, fluid=GAS, initial={"curvature": [0.3, 1.0, 0.5]}, velocity=1.5,
-                          gravity=list(g))
+    model = build_model(coupled_scene(nodes=7, parcels=9, fluid=GAS, initial={"curvature": [0.3, 1.0, 0.5]}, velocity=1.5,
+                                      gravity=list(g)))
     sim = Simulation(model)
     M_tot = float(np.sum(model.rod.node_mass) + np.sum(model.tube.m))
     P = sim.monitors()["linear_momentum"]
@@ -255,37 +212,6 @@ def test_gravity_changes_the_momentum_by_exactly_h_mtot_g():
         P1 = sim.monitors()["linear_momentum"]
         assert np.allclose(P1 - P, sim.h * M_tot * g, rtol=0, atol=1e-14 * np.linalg.norm(M_tot * g))
         P = P1
-
-
-def _release_from_mode(model, shape_of, amp=1e-4):
-    """Start ``model``'s rod at rest in the first mode shape of ``shape_of`` (a rod model), tip amplitude ``amp``."""
-    from varint.analysis.rod_modes import rod_modes
-
-    _, X = rod_modes(shape_of, count=1, vectors=True)
-    rod = model.rod
-    u = np.zeros((model.N + 1, 6))
-    u[rod.mask] = X[:, 0]
-    u *= amp / np.max(np.abs(u[:, :3]))
-    rod.set_configuration(rod.Lam0 @ cay(u[:, 3:]), rod.r0 + u[:, :3], rest=True)
-
-
-def liquid_cantilever(N, h, R=0.01, L=1.0, rho_f=1000.0, scheme="midpoint"):
-    """The water-filled cantilever of docs/theory.md §10.7a (clamped-free, planar, labels on the nodes) and the rod
-    lattice with the liquid's mass rho_f A_f added to rho A, both released from the latter's first mode.  Returns
-    (coupled, heavy, Timoshenko's first frequency with that mass)."""
-    sec = dict(SECTION, mass_per_length=0.3, bending_stiffness=2.0, rotary_inertia=1e-5)
-    added = rho_f * math.pi * R * R
-    coupled = coupled_scene(nodes=N + 1, parcels=N, fluid=dict(LIQUID, density=rho_f), ends=("clamped", "free"),
-                            radius=R, section=sec, dimension=2, h=h, length=L, scheme=scheme)
-    heavy = build_model(parse_scene(to_toml({
-        "title": "the rod with the liquid's mass", "tube": {"length": L, "nodes": N + 1, "radius": R},
-        "rod": dict(sec, mass_per_length=sec["mass_per_length"] + added, dimension=2,
-                    ends={"s0": "clamped", "sL": "free"}), "time": {"step": h, "end": 10.0}})))
-    _release_from_mode(heavy, heavy)
-    _release_from_mode(coupled, heavy)
-    f_beam = timoshenko_cantilever(sec["bending_stiffness"], sec["shear_stiffness"], sec["mass_per_length"] + added,
-                                   sec["rotary_inertia"], L, count=1)[0]
-    return coupled, heavy, f_beam
 
 
 @pytest.mark.slow  # 0.5-1.7 min: the slow tier (tests/conftest.py; CI runs it)
@@ -330,7 +256,7 @@ def test_periodic_coupled_tube_keeps_its_momenta_and_period(case):
     angular momentum along the period is kept to round-off; the image node stays node 0 shifted by the period."""
     kw = dict(CASES[case])
     g = np.array(kw.pop("gravity", [0.0, 0.0, 0.0]))
-    model = coupled_scene(nodes=9, parcels=12, gravity=list(g), **kw)
+    model = build_model(coupled_scene(nodes=9, parcels=12, gravity=list(g), **kw))
     sim = Simulation(model)
     M_tot = float(np.sum(model.rod.node_mass) + np.sum(model.tube.m))
     m0 = sim.monitors()
@@ -368,7 +294,7 @@ def test_closed_form_momentum_balances_are_the_momentum_map_of_the_residual_and_
     of those rows (the internal forces' sums vanish identically: rod, gas or liquid pressure, the liquid's level
     constraint); Step.rigid_polish (one step along the rigid motions of level n+1, its 6x6 matrix approximate in xi)
     reduces them by orders of magnitude and leaves every other row of the residual unchanged but for round-off."""
-    model = coupled_scene(**CASES[case])
+    model = build_model(coupled_scene(**CASES[case]))
     sim = Simulation(model)
     step = sim.stepper.action
     rng = np.random.default_rng(3)
@@ -395,7 +321,7 @@ def test_free_tube_keeps_its_momenta_to_round_off_over_long_runs(case, steps):
     |dJ|/|J0|: gas, 600 steps, 4.6e-15, 3.1e-15 (before the kernels read the increments and the step was polished
     along the rigid motions: 7.2e-13, 3.4e-13); liquid, 300 steps, 4.7e-15, 2.8e-15 (before: 1.7e-12, 6.3e-13)."""
     kw = {k: v for k, v in CASES[case].items() if k != "gravity"}
-    model = coupled_scene(nodes=9, parcels=12, **kw)
+    model = build_model(coupled_scene(nodes=9, parcels=12, **kw))
     sim = Simulation(model)
     dP, dJ = momentum_drift(sim, steps, every=10)
     assert dP < 1e-13 and dJ < 5e-14, (dP, dJ)

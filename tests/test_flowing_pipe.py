@@ -23,85 +23,16 @@ import math
 import numpy as np
 import pytest
 
-from varint import Simulation, build_model, parse_scene
-from varint.exact.beams import flowing_pipe_critical_speed, flowing_pipe_waves
+from varint import Simulation, build_model
+from varint.analysis.signals import dominant_frequency, two_frequency_fit
+from varint.scene.standard import (FLOWING_PIPE_DENSITY as RHO_F, FLOWING_PIPE_K as K, FLOWING_PIPE_RADIUS as RADIUS,
+                                   FLOWING_PIPE_STEP as H, FLOWING_PIPE_WALL as WALL, periodic_pipe_critical_speed,
+                                   periodic_pipe_scene, periodic_pipe_waves)
 
-from varint.scene.text import to_toml
-
-# EI = m = M = 1 (beta = M / (m + M) = 1/2), period L = 1: U_c = 8.47 m/s (Timoshenko, 8.89 Euler–Bernoulli)
-SECTION = {"mass_per_length": 1.0, "rotary_inertia": 1e-4, "bending_stiffness": 1.0, "torsional_stiffness": 1.0,
-           "axial_stiffness": 400.0, "shear_stiffness": 400.0}
-RHO_F = 1000.0
-RADIUS = math.sqrt(1.0 / (RHO_F * math.pi))  # M = rho_f pi R^2 = 1 kg/m
-WALL = {"model": "quasistatic", "law": "linear", "thickness": 1e-3, "density": 7800.0, "youngs_modulus": 2e11,
-        "poisson_ratio": 0.3}
-K = 2.0 * math.pi
-# h: the stiff wall's acoustic modes (h omega >= 7) are not resolved; smaller steps and finer lattices meet the
-# flow instability of docs/theory.md §12 (10 elements run at h >= 5e-4, fail at 2.5e-4; 40 elements fail)
-H = 5e-4
-AMPLITUDE = 1e-5  # m/s: linear (the pressure drop of the lengthened loop ~ 1 Pa, against M U^2 / A ~ 1e4 Pa)
-
-
-def theory(U):
-    s = SECTION
-    return flowing_pipe_waves(K, U, s["bending_stiffness"], s["shear_stiffness"], s["mass_per_length"],
-                              s["rotary_inertia"], RHO_F * math.pi * RADIUS ** 2)
-
-
-def critical_speed():
-    """U where the two bending roots meet."""
-    s = SECTION
-    return flowing_pipe_critical_speed(K, s["bending_stiffness"], s["shear_stiffness"], s["mass_per_length"],
-                                       s["rotary_inertia"], RHO_F * math.pi * RADIUS ** 2)
-
-
-def pipe_scene(U, nodes, parcels, steps, h=H, amplitude=AMPLITUDE, wall=WALL):
-    d = {"title": "periodic flowing pipe", "tube": {"length": 1.0, "nodes": nodes, "radius": RADIUS},
-         "rod": dict(SECTION, dimension=2, ends={"s0": "periodic", "sL": "periodic"},
-                     perturbation=[{"field": "velocity", "shape": "cosine", "wavelength": 1.0, "amplitude": amplitude}]),
-         "wall": wall,
-         "fluid": {"model": "incompressible", "density": RHO_F, "pressure": 1e5, "parcels": parcels, "velocity": U,
-                   "ends": {"s0": "periodic", "sL": "periodic"}},
-         "time": {"step": h, "end": steps * h}}
-    if amplitude == 0.0:
-        del d["rod"]["perturbation"]
-    return parse_scene(to_toml(d))
-
-
-def pencil(c, h):
-    """The two complex frequencies omega of c(t_n) = A exp(-i omega_1 t) + B exp(-i omega_2 t) (linear prediction)."""
-    A = np.stack([c[1:-1], c[:-2]], 1)
-    a = np.linalg.lstsq(A, c[2:], rcond=None)[0]
-    z = np.roots([1.0, -a[0], -a[1]])
-    return tuple(sorted((complex(1j * np.log(x) / h) for x in z), key=lambda w: w.real))
-
-
-def dominant(c, h):
-    """The complex frequency of c(t_n) = A exp(-i omega t) (one-term linear prediction): a growing wave once
-    the decaying one has died out."""
-    a = np.vdot(c[:-1], c[1:]) / np.vdot(c[:-1], c[:-1])
-    return complex(1j * np.log(a) / h)
-
-
-def run(U, nodes, parcels, steps=1200, h=H, amplitude=AMPLITUDE):
-    sim = Simulation(build_model(pipe_scene(U, nodes, parcels, steps, h, amplitude)))
-    m0 = sim.monitors()
-    c, energy, momentum, pressure = [], [], [], []
-    for _ in range(steps):
-        sim.step()
-        f = sim.fields()
-        r = f["rod/r"][:-1]  # node N is node 0's image
-        c.append(np.mean(r[:, 1] * np.exp(-1j * K * r[:, 0])))
-        pressure.append(np.mean(f["fluid/pressure"]))
-        mo = sim.monitors()
-        energy.append(mo["energy"] - m0["energy"])
-        momentum.append(np.asarray(mo["linear_momentum"]) - m0["linear_momentum"])
-    scale = abs(m0["linear_momentum"][0])  # the fluid's, M U L
-    momentum = np.abs(np.array(momentum)) / scale
-    return {"c": np.array(c), "amplitude": np.abs(c), "energy": np.array(energy) / m0["energy_fluid_kinetic"],
-            "momentum": momentum[:, 1].max(), "axial_momentum": momentum[:, 0].max(),
-            "pressure": np.array(pressure) - 1e5}
-
+# the pipe (varint.scene.standard.periodic_pipe_scene): EI = m = M = 1 (beta = M / (m + M) = 1/2), period L = 1,
+# U_c = 8.47 m/s (Timoshenko, 8.89 Euler-Bernoulli); its run, recording the lateral wave, the energy, the momenta and
+# the mean pressure: scripts/_runs.py, shared with scripts/flowing_pipe_linear.py
+from _runs import periodic_pipe_run
 
 def check_conservation(res):
     """Momenta: the lateral one to round-off, the axial one (which the labels carry) to the Newton tolerance
@@ -118,15 +49,15 @@ def test_flowing_pipe_dispersion_relation_and_its_order():
     (measured -10.243 / 36.759 at 10 elements and -9.869 / 36.433 at 20 against -9.762 / 36.329; the
     averaged space-discrete linearisation, scripts/flowing_pipe_linear.py, gives -10.243 / 36.756 and
     -9.870 / 36.433: the time step and the label crossings add < 1e-4)."""
-    U = 0.5 * critical_speed()
-    exact = theory(U)
+    U = 0.5 * periodic_pipe_critical_speed()
+    exact = periodic_pipe_waves(U)
     assert exact[0].real < 0.0 < exact[1].real  # one wave runs upstream (against k), one downstream
     split = (exact[0] + exact[1]).real  # the Coriolis split, 2 M U k / (m + M) = U k up to the rotary inertia
     assert split == pytest.approx(U * K, rel=3e-3)
     errs = []
     for nodes in (11, 21):
-        res = run(U, nodes, 2 * (nodes - 1))
-        w = res["omega"] = pencil(res["c"], H)
+        res = periodic_pipe_run(U, nodes, 2 * (nodes - 1))
+        w = res["omega"] = two_frequency_fit(res["c"], H)
         errs.append([abs(w[i].real / exact[i].real - 1.0) for i in range(2)])
         assert max(abs(x.imag) for x in w) < 5e-4 * abs(exact[1].real)  # neither grows nor decays (< 0.02 /s)
         assert abs((w[0] + w[1]).real / split - 1.0) < 3e-3  # the Coriolis split on every lattice
@@ -139,11 +70,11 @@ def test_flowing_pipe_dispersion_relation_and_its_order():
 
 def test_flowing_pipe_is_stable_below_the_critical_speed():
     """0.9 U_c: two real frequencies (measured 12.10 / 35.71 against 12.31 / 35.51), bounded amplitude."""
-    U = 0.9 * critical_speed()
-    exact = theory(U)
+    U = 0.9 * periodic_pipe_critical_speed()
+    exact = periodic_pipe_waves(U)
     assert max(abs(w.imag) for w in exact) == 0.0
-    res = run(U, 21, 40)
-    w = pencil(res["c"], H)
+    res = periodic_pipe_run(U, 21, 40)
+    w = two_frequency_fit(res["c"], H)
     assert max(abs(x.imag) for x in w) < 1e-3 * abs(w[1].real)  # |growth| < 0.04 /s against 12 /s at 1.1 U_c
     for i in range(2):
         assert w[i].real == pytest.approx(exact[i].real, rel=0.03)
@@ -156,13 +87,13 @@ def test_flowing_pipe_flutters_above_the_critical_speed():
     """1.1 U_c: one wave grows at the Timoshenko pipe's rate, converging at second order (measured growth
     11.33 / 11.98 1/s at 10 / 20 elements against 12.19; frequency 29.17 / 29.22 against 29.22).  The initial
     velocity 1e-6 m/s keeps the wave linear over the run (amplitude < 5e-5 m)."""
-    U = 1.1 * critical_speed()
-    exact = max(theory(U), key=lambda w: w.imag)
+    U = 1.1 * periodic_pipe_critical_speed()
+    exact = max(periodic_pipe_waves(U), key=lambda w: w.imag)
     assert exact.imag > 0.0
     errs = []
     for nodes in (11, 21):
-        res = run(U, nodes, 2 * (nodes - 1), amplitude=1e-6)
-        w = dominant(res["c"][600:], H)  # the decaying wave is down by exp(-2 Im omega t) < 1e-3 there
+        res = periodic_pipe_run(U, nodes, 2 * (nodes - 1), amplitude=1e-6)
+        w = dominant_frequency(res["c"][600:], H)  # the decaying wave is down by exp(-2 Im omega t) < 1e-3 there
         errs.append(abs(w.imag / exact.imag - 1.0))
         assert w.real == pytest.approx(exact.real, rel=0.01)
         a = res["amplitude"]
@@ -177,9 +108,9 @@ def test_flowing_pipe_flutter_saturates_by_the_pressure_drop_of_the_lengthened_l
     1/2 int w'^2, the liquid (fixed volume) squeezes the stiff wall, and the uniform pressure drop dp acts on
     the lateral motion as a tension; the wave stops growing once dp A ~ -M (U^2 - U_c^2), i.e. U_eff = U_c.
     Measured peak drops -15.2 kPa (10 elements) against -15.1 kPa; the dynamic overshoot is allowed 25 %."""
-    Uc = critical_speed()
+    Uc = periodic_pipe_critical_speed()
     U = 1.1 * Uc
-    res = run(U, 11, 20, steps=700, amplitude=1e-3)
+    res = periodic_pipe_run(U, 11, 20, steps=700, amplitude=1e-3)
     area = math.pi * RADIUS ** 2
     M = RHO_F * area
     expected = -M * (U * U - Uc * Uc) / area
@@ -199,9 +130,9 @@ def test_liquid_held_at_the_levels_has_no_alternating_mode():
     level volumes at the Newton tolerance, energy conserved (measured 3e-12 of the flow's), and the lateral
     wave grows at the flutter rate (measured 11.44 /s against the Timoshenko pipe's 12.19; the 10-element lattice
     gives 11.35, the midpoint runs at h = 5e-4 11.33)."""
-    U = 1.1 * critical_speed()
+    U = 1.1 * periodic_pipe_critical_speed()
     h, steps = 2.5e-4, 1200
-    sim = Simulation(build_model(pipe_scene(U, 11, 20, steps, h, 1e-6, wall=dict(WALL, model="dynamic"))))
+    sim = Simulation(build_model(periodic_pipe_scene(U, 11, 20, steps, h, 1e-6, wall=dict(WALL, model="dynamic"))))
     t = sim.model.tube
     m0 = sim.monitors()
     level, energy, c = [], [], []
@@ -216,8 +147,8 @@ def test_liquid_held_at_the_levels_has_no_alternating_mode():
         assert mo["constraint_residual"] == level[-1]
     assert max(level) < 1e-12, max(level)
     assert max(energy) < 1e-10, max(energy)
-    exact = max(theory(U), key=lambda w: w.imag)
-    w = dominant(np.array(c)[600:], h)
+    exact = max(periodic_pipe_waves(U), key=lambda w: w.imag)
+    w = dominant_frequency(np.array(c)[600:], h)
     assert w.imag == pytest.approx(exact.imag, rel=0.1)
 
 

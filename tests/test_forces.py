@@ -15,7 +15,7 @@ from varint import build_model, make_simulation
 from varint.terms.forces import Declaration, TipTorque, derive_invariants
 from varint.lattice.lie import cay
 
-from test_rod import rod_scene
+from varint.scene.standard import rod_scene
 
 
 def test_derive_invariants_combines_declarations():

@@ -78,7 +78,7 @@ def test_invariants_follow_term_declarations():
 
 
 def _rod_model(**rod):
-    from test_rod import rod_scene
+    from varint.scene.standard import rod_scene
     from varint import build_model
 
     return build_model(rod_scene(**rod))

@@ -6,34 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from varint import Simulation, build_model, parse_scene
+from varint import Simulation, build_model
 from varint.lattice.lie import cay, cay_inv
 from varint.model.statics import lumped_mass, static_equilibrium
 from varint.analysis.rod_modes import rod_modes
 
+from varint.scene.standard import (ROD_SECTION as SECTION, ROD_SPIN as SPIN, ROD_STIFF_SECTION as STIFF, rod_scene,
+                                   solid_section, tumbling_scene)
 from varint.scene.text import to_toml
-
-SECTION = {"mass_per_length": 0.3, "rotary_inertia": 1e-4, "bending_stiffness": 2.0, "torsional_stiffness": 1.5,
-           "axial_stiffness": 1e3, "shear_stiffness": 8e2}
-
-
-def rod_scene(nodes=11, h=1e-3, ends=("free", "free"), initial=None, load=None, gravity=None, dimension=3,
-              measure="reference", section=None, length=1.0, end=1.0, perturbation=None):
-    rod = dict(section or SECTION, dimension=dimension, measure=measure, ends={"s0": ends[0], "sL": ends[1]})
-    if perturbation:
-        rod["perturbation"] = perturbation
-    if initial:
-        rod["initial"] = initial
-    if load:
-        rod["load"] = load
-    d = {"title": "rod", "tube": {"length": length, "nodes": nodes, "radius": 0.01}, "rod": rod,
-         "time": {"step": h, "end": end}}
-    if gravity:
-        d["environment"] = {"gravity": gravity}
-    return parse_scene(to_toml(d))
-
-
-TUMBLE = {"velocity": [0.1, 0.2, -0.3], "angular_velocity": [1.0, 3.0, -2.0], "curvature": [0.5, 1.0, -0.7]}
 
 
 def _random_levels(model, rng, amp=0.05):  # noqa: D401
@@ -80,23 +60,13 @@ def test_step_residual_is_gradient_of_action_with_lie_variations(measure, extras
     assert np.allclose(grad, fd, atol=1e-6 * np.abs(fd).max()), np.abs(grad - fd).max()
 
 
-STIFF = dict(SECTION, axial_stiffness=1e4, shear_stiffness=8e3)
-SPIN = {"velocity": [0.1, 0.2, -0.3], "angular_velocity": [13.0, 40.0, -27.0]}
-
-
-def tumbling_model(h=1e-2, at_rest=False, measure="reference"):
-    """The free rod spinning about an oblique axis (also used by scripts/rod_long_run.py)."""
-    return build_model(rod_scene(nodes=11, h=h, section=STIFF, measure=measure,
-                                 initial=dict(SPIN, velocity=[0.0, 0.0, 0.0]) if at_rest else SPIN))
-
-
 def test_free_tumbling_rod_conserves_momenta_energy_and_orthogonality():
     """Spin about an oblique axis (h |omega| = 0.5 per step): the rod flexes under centrifugal loads.
 
     Momenta to round-off, energy bounded, frames orthogonal.  (A free rod with uniform initial
     curvature is not admissible data: its free ends carry an unbalanced moment.)
     """
-    model = tumbling_model()
+    model = build_model(tumbling_scene())
     sim = Simulation(model)
     sim.step()
     m1 = sim.monitors()
@@ -203,18 +173,8 @@ def test_planar_free_rod_is_free():
     assert not build_model(rod_scene(nodes=11, dimension=2, ends=("pinned", "free"))).rod.free
 
 
-# -- the benchmark cantilever of scripts/bench_pyelastica.py and docs/performance.md (PyElastica's section form):
-#    L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
-
-def solid_section(E=1e6, rad=0.01, rho=1000.0, stretch_factor=None):
-    G = E / 1.5
-    A, I = math.pi * rad ** 2, math.pi * rad ** 4 / 4
-    sec = dict(mass_per_length=rho * A, rotary_inertia=rho * I, bending_stiffness=E * I, torsional_stiffness=G * 2 * I,
-               axial_stiffness=E * A, shear_stiffness=4.0 / 3.0 * G * A)
-    if stretch_factor:
-        sec["axial_stiffness"] = sec["shear_stiffness"] = stretch_factor * E * I
-    return sec
-
+# -- the benchmark cantilever of scripts/bench_pyelastica.py and docs/performance.md (PyElastica's section form,
+#    varint.scene.standard.solid_section): L = 1 m, solid radius 1 cm, rho = 1000, G = E/1.5
 
 def _bending(freqs, targets):
     freqs = np.asarray(freqs)

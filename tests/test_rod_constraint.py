@@ -24,7 +24,7 @@ from varint.terms.rod import pack_level, unpack_level
 
 from helpers import momentum_drift, tip_frequency
 from varint.scene.text import to_toml
-from test_rod import SECTION, rod_scene
+from varint.scene.standard import ROD_SECTION as SECTION, rod_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -15,7 +15,7 @@ from varint.lattice.lie import cay, cay_inv, dcay_inv
 from varint.terms.rod import EPS_CS, _k_dcinvT, k_element, banded_jacobian
 from varint.model.statics import force_jacobian, force_map
 
-from test_rod import SECTION, rod_scene, solid_section
+from varint.scene.standard import ROD_SECTION as SECTION, rod_scene, solid_section
 
 LOADS = {"gravity": [0.3, -9.81, 0.5], "load": {"force": [1.0, -2.0, 0.5], "torque": [0.3, 0.2, -0.1]}}
 LOADS_2D = {"gravity": [0.3, -9.81, 0.0], "load": {"force": [1.0, -2.0, 0.0], "torque": [0.0, 0.0, -0.1]}}

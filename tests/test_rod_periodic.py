@@ -10,7 +10,7 @@ import pytest
 from varint import Simulation, build_model
 from varint.analysis.rod_modes import rod_modes
 
-from test_rod import SECTION, rod_scene
+from varint.scene.standard import ROD_SECTION as SECTION, rod_scene
 
 
 def timoshenko_wave(k, s=SECTION):

@@ -8,32 +8,22 @@ import pytest
 
 from varint import Simulation, build_model, parse_scene
 from varint.analysis.linear import gyroscopic_modes_of
-from varint.exact.beams import spinning_shaft_whirl
 from varint.errors import SolverError
 from varint.lattice.lie import cay, dcay
-from varint.model.statics import retract, rotating_frame_kinetics
+from varint.model.statics import rotating_frame_kinetics
 from varint.analysis.rod_modes import rod_modes
 
+from varint.analysis.signals import nearest
+from varint.scene.standard import (BLADE_SECTION as BLADE, BLADE_SPIN, ROD_SECTION as SECTION, SHAFT_SECTION as SHAFT,
+                                   SHAFT_SPIN_RATE as SPIN_RATE, blade_scene, rod_scene, shaft_scene, solid_section)
+from varint.scene.standard import shaft_whirl as whirl
 from varint.scene.text import to_toml
-from test_rod import SECTION, rod_scene
 
-# a thick shaft (radius of gyration 5.8 cm on 1 m) so that the gyroscopic splitting is large; axial and
-# torsional modes placed above the first three bending pairs
-SHAFT = {"mass_per_length": 0.3, "rotary_inertia": 1e-3, "bending_stiffness": 2.0, "torsional_stiffness": 15.0,
-         "axial_stiffness": 1e5, "shear_stiffness": 8e3}
-SPIN_RATE = 60.0  # rad/s about the shaft's axis: 2.3 x its first bending frequency
+from _runs import blade_lattice_flap, blade_time_domain_flap, shaft_time_domain_whirl
 
-
-def shaft_model(nodes, spin=SPIN_RATE, h=1e-3):
-    return build_model(rod_scene(nodes=nodes, section=SHAFT, ends=("pinned", "pinned"), h=h,
-                                 initial={"angular_velocity": [spin, 0.0, 0.0]}))
-
-
-def whirl(n, spin=SPIN_RATE):
-    """Forward and backward whirl of bending mode n from the continuum theory (seen from the ground)."""
-    s = SHAFT
-    return spinning_shaft_whirl(n * math.pi, s["mass_per_length"], s["rotary_inertia"], 2 * s["rotary_inertia"],
-                                s["bending_stiffness"], s["shear_stiffness"], spin)
+# the shaft (varint.scene.standard.shaft_scene): a thick shaft (radius of gyration 5.8 cm on 1 m) so that the
+# gyroscopic splitting is large; axial and torsional modes placed above the first three bending pairs; whirl: the
+# continuum theory's forward and backward whirl of bending mode n (seen from the ground)
 
 
 def test_gyroscopic_modes_of_known_systems():
@@ -93,19 +83,14 @@ def _rotating_frame_prediction(count=3):
     return np.sort(out)
 
 
-def _nearest(values, targets):
-    values = np.asarray(values)
-    return np.array([values[np.argmin(np.abs(values - t))] for t in targets])
-
-
 def test_spinning_shaft_whirl_against_timoshenko_theory_order_two():
     """Pinned-pinned shaft at 2.3x its first critical speed: the three lowest forward/backward whirl pairs."""
     pred = _rotating_frame_prediction()
     errs = []
     for nodes in (21, 41, 81):
         # sparse shift-invert: the lowest modes only, and no dense O(n^3) eig (sparse = dense is tested below)
-        f = [m["frequency"] for m in rod_modes(shaft_model(nodes), count=12, method="sparse")]
-        errs.append(np.abs(_nearest(f, pred) / pred - 1))
+        f = [m["frequency"] for m in rod_modes(build_model(shaft_scene(nodes)), count=12, method="sparse")]
+        errs.append(np.abs(nearest(f, pred) / pred - 1))
     errs = np.array(errs)
     assert np.max(errs[-1]) < 1e-3, errs[-1]
     order = np.log2(errs[1] / errs[2])
@@ -113,54 +98,17 @@ def test_spinning_shaft_whirl_against_timoshenko_theory_order_two():
     assert np.all(np.abs(order[big] - 2.0) < 0.15), order
     # the test can fail: without the gyroscopic matrix the spin would leave every frequency at its
     # non-spinning value, 9-27 % away from the prediction
-    still = np.array([m["frequency"] for m in rod_modes(shaft_model(41, spin=0.0), count=12)])
+    still = np.array([m["frequency"] for m in rod_modes(build_model(shaft_scene(41, spin=0.0)), count=12)])
     bending = [(whirl(n, 0.0)[0]) for n in (1, 2, 3)]
     assert np.min(np.abs(np.subtract.outer(pred, bending)) / pred[:, None]) > 0.05
-    assert _nearest(still, bending) == pytest.approx(bending, rel=2e-3)
-
-
-def time_domain_whirl(nodes=21, h=1e-3, duration=3.0, amp=1e-4):
-    """Release the spinning shaft from a small planar bend in its first mode shape and fit the
-    midpoint's complex deflection u = y + i z to a e^{i w1 t} + b e^{-i w2 t}: returns (w1, w2)."""
-    from scipy.optimize import least_squares
-
-    model = shaft_model(nodes, h=h)
-    s = model.rod.r0[:, 0]
-    z = np.zeros((model.N + 1, 6))
-    z[:, 1] = amp * np.sin(math.pi * s)  # y-deflection in the first mode shape ...
-    z[:, 5] = amp * math.pi * np.cos(math.pi * s)  # ... with the sections turned with it
-    model.rod.Lam0, model.rod.r0 = retract(model.rod.Lam0, model.rod.r0, z[model.rod.mask], model.rod.mask)
-    sim = Simulation(model)
-    mid = model.N // 2
-    ts, us = [], []
-    for _ in range(int(round(duration / h))):
-        sim.step()
-        r = sim.fields()["rod/r"][mid]
-        ts.append(sim.state.t)
-        us.append(r[1] + 1j * r[2])
-    t, u = np.array(ts), np.array(us)
-
-    def misfit(p):
-        w1, w2 = p[:2]
-        a, b = p[2] + 1j * p[3], p[4] + 1j * p[5]
-        d = a * np.exp(1j * w1 * t) + b * np.exp(-1j * w2 * t) - u
-        return np.concatenate([d.real, d.imag]) / amp
-
-    # first guesses from the data alone: the peaks of the (zero-padded) spectrum at positive
-    # (forward, in the sense of the spin) and negative (backward) frequency, then a least-squares fit
-    spec = np.abs(np.fft.fft(u * np.hanning(len(u)), 16 * len(u)))
-    freq = 2 * math.pi * np.fft.fftfreq(16 * len(u), h)
-    g1 = freq[np.argmax(np.where(freq > 0, spec, 0))]
-    g2 = -freq[np.argmax(np.where(freq < 0, spec, 0))]
-    fit = least_squares(misfit, [g1, g2, amp / 2, 0, amp / 2, 0], x_scale=[10, 10, amp, amp, amp, amp])
-    return fit.x[0], fit.x[1]
+    assert nearest(still, bending) == pytest.approx(bending, rel=2e-3)
 
 
 def test_spinning_shaft_time_domain_whirls_at_the_predicted_frequencies():
     """Released from a small planar bend, the spinning shaft's midpoint traces a forward and a backward
     whirl: the time-domain integrator and the continuum theory agree on both frequencies (3 s, ~11
     periods of the backward whirl; the modes of the same 20-element lattice are within 1.2e-3)."""
-    w1, w2 = time_domain_whirl()
+    w1, w2 = shaft_time_domain_whirl()
     wf, wb = whirl(1)
     assert w1 == pytest.approx(wf, rel=2e-3) and w2 == pytest.approx(wb, rel=2e-3), (w1, w2, wf, wb)
     assert abs(wf - wb) > 0.1 * whirl(1, 0.0)[0]  # a real splitting, resolved
@@ -208,15 +156,8 @@ def test_free_rod_spinning_about_its_axis_is_steady():
 
 # -- a free rod spun end over end: the steady rotation balances centrifugal tension (a rotor blade)
 
-# slender, stiff in shear and stretch: the Euler-Bernoulli rotating beam applies (to ~1e-5).  Stiffer
-# still is not better: a dense eigen-solver resolves frequencies to ~1e-7 of the highest one.
-BLADE = {"mass_per_length": 0.3, "rotary_inertia": 1e-8, "bending_stiffness": 2.0, "torsional_stiffness": 1.5,
-         "axial_stiffness": 1e6, "shear_stiffness": 1e7}
-BLADE_SPIN = np.array([0.0, 0.0, 20.0])  # about z, through the centre: the rod turns in the x-y plane
-
-
-def blade_model(nodes, h=1e-3):
-    return build_model(rod_scene(nodes=nodes, section=BLADE, h=h, initial={"angular_velocity": list(BLADE_SPIN)}))
+# (varint.scene.standard.blade_scene: slender, stiff in shear and stretch, so that the Euler-Bernoulli rotating beam
+# applies, to ~1e-5)
 
 
 def test_steady_rotation_stretches_the_rod_as_the_centrifugal_tension_says():
@@ -230,7 +171,7 @@ def test_steady_rotation_stretches_the_rod_as_the_centrifugal_tension_says():
     exact = 2 * (math.tan(k * l) / k - l)
     errs = []
     for nodes in (21, 41, 81):
-        model = blade_model(nodes)
+        model = build_model(blade_scene(nodes))
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
         errs.append(abs(np.linalg.norm(r[-1] - r[0]) - 1.0 - exact) / exact)
         m = model.rod.section.rhoA * model.rod.w
@@ -255,7 +196,7 @@ def test_spinning_free_rod_flap_and_lag_against_the_rotating_beam():
     lag = np.sqrt(flap ** 2 - W * W)
     errs = []
     for nodes in (41, 81):
-        model = blade_model(nodes)
+        model = build_model(blade_scene(nodes))
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
         f = np.array([m["frequency"] for m in rod_modes(model, count=16, Lam=Lam, r=r, method="sparse")])
         # seen from the spinning frame: the rigid tilt at W, and the in-plane drift of the free body, a
@@ -263,7 +204,7 @@ def test_spinning_free_rod_flap_and_lag_against_the_rotating_beam():
         # 2.8 % at 40 / 80 elements, independent of the Hessian's difference step: checked); the pair
         # also blurs the tilt next to it (to ~3e-6 here)
         assert np.sum(np.abs(f / W - 1) < 1e-4) >= 1 and np.sum(np.abs(f / W - 1) < 5e-2) == 3, f[:8]
-        errs.append(np.concatenate([_nearest(f, flap) / flap - 1, _nearest(f, lag) / lag - 1]))
+        errs.append(np.concatenate([nearest(f, flap) / flap - 1, nearest(f, lag) / lag - 1]))
     errs = np.abs(errs)
     assert np.max(errs[-1]) < 1e-3, errs  # measured 4.9e-4 .. 6.9e-4 at 80 elements
     order = np.log2(errs[0] / errs[1])[[0, 1, 3, 4]]  # modes 1-2, flap and lag
@@ -278,7 +219,7 @@ def test_a_run_started_in_the_steady_rotation_stays_in_it():
 
     wobble = []
     for h in (2e-3, 1e-3):
-        model = blade_model(21, h=h)
+        model = build_model(blade_scene(21, h=h))
         Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
         model.rod.set_configuration(Lam, r)
         sim = Simulation(model)
@@ -349,11 +290,10 @@ def test_scene_can_start_from_the_steady_rotation(tmp_path):
 def test_sparse_shift_invert_modes_equal_the_dense_ones(case):
     """rod_modes(method="sparse") (eigsh / eigs with shift-invert, used above 1500 unknowns) returns the
     dense solver's lowest modes; rigid modes (free rod, the shaft's spin) come out as zeros in both."""
-    from test_rod import solid_section
 
     model = {"cantilever": lambda: build_model(rod_scene(nodes=41, section=solid_section(), ends=("clamped", "free"))),
              "free": lambda: build_model(rod_scene(nodes=31)),
-             "spinning_shaft": lambda: shaft_model(41)}[case]()
+             "spinning_shaft": lambda: build_model(shaft_scene(41))}[case]()
     dense = rod_modes(model, count=10, method="dense")
     sparse = rod_modes(model, count=10, method="sparse")
     fd, fs = np.array([m["frequency"] for m in dense]), np.array([m["frequency"] for m in sparse])
@@ -366,7 +306,6 @@ def test_sparse_shift_invert_modes_equal_the_dense_ones(case):
 @pytest.mark.slow  # 0.3-0.4 min: the slow tier (tests/conftest.py; CI runs it)
 def test_modes_of_a_thousand_element_rod():
     """Above 1500 unknowns rod_modes goes sparse: 1000 elements (6000 unknowns) against Timoshenko."""
-    from test_rod import solid_section
     from varint.exact.beams import timoshenko_cantilever
 
     sec = solid_section()
@@ -391,40 +330,6 @@ def test_steady_rotation_of_a_rod_spun_about_no_principal_axis_is_the_nearest_on
     chord = r[-1] - r[0]
     assert abs(np.dot(chord, W)) < 1e-9 * np.linalg.norm(chord) * np.linalg.norm(W)
     assert info["turned_deg"] == pytest.approx(math.degrees(math.asin(W[0] / np.linalg.norm(W))), abs=0.05)
-
-
-def blade_lattice_flap(nodes=41):
-    """The lattice's lowest elastic flap frequency about the steady rotation (nearest to 67.5 rad/s)."""
-    from varint.model.statics import static_equilibrium
-
-    model = blade_model(nodes)
-    Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
-    f = np.array([m["frequency"] for m in rod_modes(model, count=12, Lam=Lam, r=r)])
-    return f[np.argmin(np.abs(f - 67.5))]
-
-
-def blade_time_domain_flap(h, nodes=41, duration=1.0):
-    """Release the spun rod from its steady rotation with a 0.1 mm out-of-plane bend in the free-free
-    first mode shape; the tip's z(t) zero-crossing frequency (z is the spin axis, so out-of-plane
-    motion is seen undistorted by the frame rotation)."""
-    from varint.analysis.signals import zero_crossing_frequency
-    from varint.model.statics import retract, static_equilibrium
-
-    model = blade_model(nodes, h=h)
-    Lam, r, _ = static_equilibrium(model, spin=BLADE_SPIN)
-    s = np.linspace(0.0, 1.0, model.N + 1)
-    shape = np.cosh(4.73 * (s - 0.5)) / np.cosh(2.365) + np.cos(4.73 * (s - 0.5)) / np.cos(2.365)  # free-free mode 1
-    z = np.zeros((model.N + 1, 6))
-    z[:, 2] = 1e-4 * (shape - shape.mean())
-    z[:, 4] = -1e-4 * np.gradient(shape, s)  # sections turned with the slope
-    model.rod.set_configuration(*retract(Lam, r, z[model.rod.mask], model.rod.mask))
-    sim = Simulation(model)
-    t, tip = [], []
-    for _ in range(int(round(duration / h))):
-        sim.step()
-        t.append(sim.state.t)
-        tip.append(sim.fields()["rod/r"][-1, 2])
-    return zero_crossing_frequency(np.array(t), np.array(tip))
 
 
 def test_spinning_free_rod_flaps_at_the_stiffened_frequency_in_the_time_domain():

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from helpers import momentum_drift
-from test_rod import SPIN, STIFF, TUMBLE, rod_scene, solid_section
+from varint.scene.standard import (ROD_SPIN as SPIN, ROD_STIFF_SECTION as STIFF, ROD_TUMBLE as TUMBLE, rod_scene,
+                                   solid_section)
 from varint import Simulation, build_model
 from varint.errors import SolverError
 from varint.lattice.lie import cay

@@ -194,3 +194,74 @@ def test_check_says_the_parcels_per_element_of_a_flowing_pipe_and_warns_below_tw
     assert any(line.strip().startswith("rod: dimension = 2") for line in out)  # the rod's lines stay
     assert any(line.strip().startswith("initial shape:") for line in out)
     assert ("fewer than 2 parcels per element" in lattice[0]) == hint
+
+
+# -- a Section reads its declared keys as attributes, and nothing else
+
+
+def _sections(scene):
+    """(schema name, Section) of every section of a scene that the schema declares, sub-tables and array entries
+    included (the top level's one key, title, is the Scene's own attribute)."""
+    from varint.scene.schema import SCHEMA
+
+    out = []
+    for name in SCHEMA:
+        if not name:
+            continue
+        parts = name.rstrip("[]").split(".")
+        node = getattr(scene, parts[0])
+        for part in parts[1:]:
+            node = None if node is None else getattr(node, part)
+        if node is None:
+            continue
+        out += [(name, entry) for entry in node] if name.endswith("[]") else [(name, node)]
+    return out
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
+def test_every_declared_key_of_every_section_reads_as_an_attribute(path):
+    """Walk SCHEMA over each example: every key declared for a section the scene has reads without error (the
+    validator fills each with its value or default, also in the entries it builds itself, e.g. the wall's
+    perturbation of [initial.traveling_shock])."""
+    from varint.scene.schema import SCHEMA
+
+    scene = load_scene(path)
+    found = _sections(scene)
+    assert any(name == "time" for name, _ in found)
+    for name, section in found:
+        for key in SCHEMA[name]:
+            assert getattr(section, key.name) == section[key.name], (path.name, name, key.name)
+
+
+def test_a_misspelt_attribute_raises_naming_the_section_and_the_key():
+    """scene.fluid.densty used to read None (a Section's attributes were dict.get); it names the key now."""
+    scene = load_scene(EXAMPLES[0].parent / "rubber_tube_pulse.toml")
+    with pytest.raises(AttributeError, match=r"^fluid\.densty: no such key in this section$"):
+        scene.fluid.densty
+    with pytest.raises(AttributeError, match=r"^fluid\.ends\.s1: no such key in this section$"):
+        scene.fluid.ends.s1
+    with pytest.raises(AttributeError, match=r"^fluid\.perturbation\[0\]\.amplitute: no such key"):
+        scene.fluid.perturbation[0].amplitute
+    with pytest.raises(AttributeError, match=r"^time\.stepp: no such key"):
+        scene.time.stepp
+    # a declared key left at its default (None) still reads; a key only some scenes carry reads by get or in
+    assert scene.environment.external_pressure is not None and scene.output.file is None
+    assert scene.fluid.get("traveling_shock") is None and "traveling_shock" not in scene.fluid
+    assert getattr(scene.fluid, "traveling_shock", None) is None and not hasattr(scene.fluid, "traveling_shock")
+    # the Section is still a dict, copies and pickles as one, and keeps its place in the scene
+    import pickle
+
+    for twin in (copy.deepcopy(scene.fluid), pickle.loads(pickle.dumps(scene.fluid))):
+        assert twin == scene.fluid and twin.density == scene.fluid.density
+        with pytest.raises(AttributeError, match=r"^fluid\.densty: "):
+            twin.densty
+
+
+def test_the_traveling_shock_example_carries_its_internal_entries():
+    """[initial.traveling_shock] adds fluid.traveling_shock and replaces wall.perturbation: both read by attribute."""
+    scene = load_scene(EXAMPLES[0].parent / "rubber_tube_traveling_shock.toml")
+    assert scene.fluid.traveling_shock.position == scene.initial.traveling_shock.position
+    (p,) = scene.wall.perturbation
+    assert p.shape == "traveling_shock" and p.field == "R" and p.amplitude is None
+    with pytest.raises(AttributeError, match=r"^fluid\.traveling_shock\.speed: no such key"):
+        scene.fluid.traveling_shock.speed

@@ -17,61 +17,15 @@ from varint.terms.shock_capturing import heated_entropy, mean_value_pressure, vi
 from varint.exact.shocks import RiemannSolution
 from varint.terms.step import Derivatives
 
+from varint.analysis.shock_measure import density_l1
+from varint.scene.standard import SOD, SOD_GAMMA as GAMMA, shock_tube_scene
 from varint.scene.text import to_toml
 
-GAMMA = 1.4
-SOD = ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1))
-
-
-def tube_scene(M, left=SOD[0], right=SOD[1], h=None, end=0.2, cfl=0.5, shock=None, periodic=False, perturbation=None):
-    """A shock tube on [0, 1] (cross-section 1 m^2, closed ends), the diaphragm at 0.5, equal-length parcels."""
-    cmax = max(math.sqrt(GAMMA * st[2] / st[0]) + abs(st[1]) for st in (left, right or left))
-    if h is None:
-        n = int(math.ceil(end * M * cmax / cfl))
-        h = end / n
-    fluid = {"model": "ideal-gas", "gamma": GAMMA, "density": left[0], "pressure": left[2], "parcels": M}
-    if right is not None:
-        fluid["initial"] = [{"from": 0.5, "to": 1.0, "density": right[0], "pressure": right[2]}]
-    if periodic:
-        fluid["ends"] = {"s0": "periodic", "sL": "periodic"}
-    if perturbation:
-        fluid["perturbation"] = perturbation
-    d = {"title": "shock tube", "tube": {"length": 1.0, "nodes": 3, "radius": 1.0 / math.sqrt(math.pi)},
-         "fluid": fluid, "time": {"step": h, "end": end}}
-    if shock is not False:
-        d["shock_capturing"] = shock or {}
-    return d
+from helpers import run_to_end, shock_tube_fields
 
 
 def build(d):
     return build_model(parse_scene(to_toml(d)))
-
-
-def fields(sim):
-    m, st = sim.model, sim.state
-    t = m.tube
-    cfg = t.config(np.concatenate([st.q[m.tube_q], st.lam[m.tube_lam]]))
-    rho, p, u = t.fluid_fields(cfg, st.p[m.tube_p])
-    return cfg.s, rho, p, u
-
-
-def density_l1(s, rho, exact, t):
-    """L1 distance on [0, 1] between the parcels' piecewise-constant density and the exact one."""
-    x = np.linspace(0.0, 1.0, 100001)
-    xc = 0.5 * (x[1:] + x[:-1])
-    k = np.clip(np.searchsorted(s, xc) - 1, 0, len(rho) - 1)
-    return float(np.sum(np.abs(rho[k] - exact.sample(xc, t, 0.5)[0])) * (x[1] - x[0]))
-
-
-def run(d, check=None):
-    sim = Simulation(build(d))
-    n = int(round(d["time"]["end"] / d["time"]["step"]))
-    for _ in range(n):
-        before = sim.state.copy()
-        sim.step()
-        if check is not None:
-            check(sim, before)
-    return sim
 
 
 # -- kernels ------------------------------------------------------------------------------------------
@@ -133,7 +87,7 @@ def test_heating_raises_the_internal_energy_by_the_work():
 
 
 def _random_step(M=10, periodic=False, seed=0):
-    model = build(tube_scene(M, h=0.01, end=0.1, shock={"quadratic": 1.2, "linear": 0.4}, periodic=periodic))
+    model = build(shock_tube_scene(M, h=0.01, end=0.1, shock={"quadratic": 1.2, "linear": 0.4}, periodic=periodic))
     sim = Simulation(model)
     st = sim.state
     rng = np.random.default_rng(seed)
@@ -197,7 +151,7 @@ def _energy_and_entropy_check(tol):
 
 
 def test_sod_energy_conserved_entropy_produced_and_never_decreasing():
-    d = tube_scene(100)
+    d = shock_tube_scene(100)
     check = _energy_and_entropy_check(1e-10)
     sim = Simulation(build(d))
     E0 = sim.monitors()["energy"]
@@ -209,7 +163,7 @@ def test_sod_energy_conserved_entropy_produced_and_never_decreasing():
         check(sim, before)
     t = sim.model.tube
     # the shock has swept the parcels right of 0.5 by t = 0.2: they are heated; those the rarefaction passed are not
-    s, rho, p, u = fields(sim)
+    s, rho, p, u = shock_tube_fields(sim)
     centres0 = (np.arange(100) + 0.5) / 100
     assert np.all(t.S[(centres0 > 0.55) & (centres0 < 0.75)] - S0[(centres0 > 0.55) & (centres0 < 0.75)] > 1.0)
     assert np.max(np.abs(t.S[centres0 < 0.3] - S0[centres0 < 0.3])) < 1e-6 * t.eos.cv
@@ -222,9 +176,9 @@ def test_sod_energy_conserved_entropy_produced_and_never_decreasing():
     ((1.0, 0.0, 1000.0), (1.0, 0.0, 0.01), 0.012, 0.45),   # ratio 1e5 (Toro's test 3)
 ])
 def test_strong_shock_tubes_stay_positive_and_conservative(left, right, end, limit):
-    d = tube_scene(100, left=left, right=right, end=end)
-    sim = run(d, _energy_and_entropy_check(1e-10))
-    s, rho, p, u = fields(sim)
+    d = shock_tube_scene(100, left=left, right=right, end=end)
+    sim = run_to_end(d, _energy_and_entropy_check(1e-10))
+    s, rho, p, u = shock_tube_fields(sim)
     assert np.all(rho > 0) and np.all(p > 0) and np.all(np.diff(s) > 0)
     err = density_l1(s, rho, RiemannSolution(left, right, GAMMA), end)
     assert err < limit  # measured at N = 100 (scripts/shock_tube_convergence.py), with a margin
@@ -236,8 +190,8 @@ def test_sod_density_error_converges_at_first_order():
     exact = RiemannSolution(*SOD, GAMMA)
     errs = []
     for M in (50, 100, 200):
-        sim = run(tube_scene(M))
-        s, rho, _, _ = fields(sim)
+        sim = run_to_end(shock_tube_scene(M))
+        s, rho, _, _ = shock_tube_fields(sim)
         errs.append(density_l1(s, rho, exact, 0.2))
     rates = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert errs[1] < 7.5e-3  # measured 6.4e-3 (Clawpack first order at N = 100 is larger)
@@ -248,7 +202,7 @@ def test_periodic_steepening_wave_keeps_momentum_and_energy():
     """A large sound wave in a periodic tube steepens into shocks: axial momentum and energy are kept to
     the Newton tolerance while entropy is produced."""
     pert = [{"field": "velocity", "shape": "cosine", "amplitude": 0.5, "wavelength": 1.0}]
-    d = tube_scene(64, right=None, periodic=True, perturbation=pert, end=1.0, cfl=0.8)
+    d = shock_tube_scene(64, right=None, periodic=True, perturbation=pert, end=1.0, cfl=0.8)
     sim = Simulation(build(d))
     P0 = sim.monitors()["linear_momentum"][0]
     S0 = sim.model.tube.S.copy()
@@ -262,7 +216,7 @@ def test_periodic_steepening_wave_keeps_momentum_and_energy():
 
 
 def test_resumed_run_equals_continuous_run(tmp_path):
-    d = tube_scene(40, end=0.1)
+    d = shock_tube_scene(40, end=0.1)
     n = int(round(d["time"]["end"] / d["time"]["step"]))
     k = n // 2
     scene = parse_scene(to_toml(d))
@@ -289,7 +243,7 @@ def test_resumed_run_equals_continuous_run(tmp_path):
 
 
 def test_without_the_section_nothing_changes():
-    model = build(tube_scene(20, shock=False))
+    model = build(shock_tube_scene(20, shock=False))
     assert model.forces == [] and model.tube.shock_capturing is None
     assert model.tube.evolving_data() == {} and model.state_data() is None
     sim = Simulation(model)
@@ -300,27 +254,27 @@ def test_without_the_section_nothing_changes():
 
 
 def test_scene_keys_defaults_and_refusals():
-    sc = parse_scene(to_toml(tube_scene(10)))
+    sc = parse_scene(to_toml(shock_tube_scene(10)))
     assert sc.shock_capturing == {"quadratic": 1.0, "linear": 0.5, "limiter": "none"}
-    d = tube_scene(10)
+    d = shock_tube_scene(10)
     d["wall"] = {"model": "dynamic", "a": 1.0, "beta1": 1.0, "beta2": 1.0}
     parse_scene(to_toml(d))  # a dynamic wall is supported (SwellingShockCapturing)
     d["wall"]["model"] = "quasistatic"
     with pytest.raises(SceneError, match=r"shock_capturing: needs wall.model = 'dynamic'"):
         parse_scene(to_toml(d))
-    d = tube_scene(10)
+    d = shock_tube_scene(10)
     d["fluid"].update(model="barotropic", bulk_modulus=2e9)
     d["fluid"].pop("initial")
     with pytest.raises(SceneError, match="shock_capturing: needs a \\[fluid\\] with model = 'ideal-gas'"):
         parse_scene(to_toml(d))
-    d = tube_scene(10)
+    d = shock_tube_scene(10)
     d["time"]["scheme"] = "trapezoidal"
     with pytest.raises(SceneError, match="time.scheme: \\[shock_capturing\\] needs 'midpoint'"):
         Simulation(build_model(parse_scene(to_toml(d))))  # (the scheme's refusal: varint.schemes.registry)
-    d = tube_scene(10, shock={"quadratic": -1.0})
+    d = shock_tube_scene(10, shock={"quadratic": -1.0})
     with pytest.raises(SceneError, match="shock_capturing.quadratic: must be >= 0"):
         parse_scene(to_toml(d))
-    d = tube_scene(10, shock={"cubic": 1.0})
+    d = shock_tube_scene(10, shock={"cubic": 1.0})
     with pytest.raises(SceneError, match="shock_capturing.cubic: unknown key"):
         parse_scene(to_toml(d))
 
@@ -329,9 +283,9 @@ def test_a_predictor_that_folds_a_label_is_retried_from_rest():
     """The pressure-ratio-100 tube at CFL 0.75: at step 3 the extrapolated predictor q + h v already folds a
     label (its residual is not finite); the stepper starts that step again from the level at rest and the
     run goes on (it stopped there before), still conserving the energy."""
-    d = tube_scene(100, left=(1.0, 0.0, 10.0), right=(0.125, 0.0, 0.1), end=0.1, cfl=0.75)
-    sim = run(d, _energy_and_entropy_check(1e-10))
-    s, rho, p, u = fields(sim)
+    d = shock_tube_scene(100, left=(1.0, 0.0, 10.0), right=(0.125, 0.0, 0.1), end=0.1, cfl=0.75)
+    sim = run_to_end(d, _energy_and_entropy_check(1e-10))
+    s, rho, p, u = shock_tube_fields(sim)
     assert np.all(rho > 0) and np.all(p > 0)
 
 
@@ -525,11 +479,7 @@ def test_traveling_shock_keeps_its_speed_and_profile():
     pressure, density, velocity and radius 0.2-0.3 m behind it match the wave's profile there within 0.5 % of the
     far state behind (measured at most 0.33 %; 0.45 % at 0.1 m, 0.23 % there at 800 parcels).  Energy is kept to
     round-off."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
-    from traveling_shock_capture import run
+    from traveling_shock_capture import run  # (scripts/ is on the tests' sys.path: pyproject.toml)
 
     r = run(400, "profile", end=1.2e-3, cfl=0.4)
     assert abs(r["speed"] / 447.0 - 1) < 5e-3, r["speed"]
@@ -702,7 +652,7 @@ def test_limited_force_jacobian_against_differences(case):
 def test_limited_sod_keeps_energy_entropy_and_accuracy():
     """Sod with the limiter: energy and entropy as without it, the density error within 10 % of the unlimited one
     (measured 6.09e-3 against 6.42e-3 at 100 parcels)."""
-    d = tube_scene(100)
+    d = shock_tube_scene(100)
     sim = Simulation(build(d))
     sim.model.forces[0].limiter = True
     check = _energy_and_entropy_check(1e-10)
@@ -711,7 +661,7 @@ def test_limited_sod_keeps_energy_entropy_and_accuracy():
         before = sim.state.copy()
         sim.step()
         check(sim, before)
-    s, rho, _, _ = fields(sim)
+    s, rho, _, _ = shock_tube_fields(sim)
     assert density_l1(s, rho, RiemannSolution(*SOD, GAMMA), 0.2) < 1.1 * 6.42e-3
 
 
@@ -722,11 +672,7 @@ def test_sloshing_20_percent_energy_kept_entropy_produced():
     damps the smooth standing wave whatever its amplitude; Christensen's limiter switches it off where the
     compression is smooth, so the limited run dissipates a fraction of it (measured 0.165 against 1.11 of the
     largest kinetic energy over 2000 steps; scripts/slosh_shock_capture.py)."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
-    from slosh_shock_capture import scene
+    from slosh_shock_capture import scene  # (scripts/ is on the tests' sys.path: pyproject.toml)
 
     dissipated = {}
     for limiter in (False, True):
@@ -750,7 +696,7 @@ def test_sloshing_20_percent_energy_kept_entropy_produced():
 
 
 def test_limiter_scene_key_switches_the_limiter_on():
-    d = tube_scene(50)
+    d = shock_tube_scene(50)
     assert build(d).forces[0].limiter is False
     d["shock_capturing"] = {"limiter": "christensen"}
     assert build(d).forces[0].limiter is True

@@ -22,10 +22,11 @@ from varint.errors import SceneError, SolverError
 from varint.lattice.lie import cay
 from varint.schemes.em_tube import TubeEMStep, label_weights, label_weights_dd, scalar_dd
 
-from helpers import fail_newton_at, tip_frequency
+from helpers import fail_newton_at, liquid_cantilever, tip_frequency
 from varint.analysis.signals import zero_crossing_frequency
+from varint.scene.standard import (BAROTROPIC as BARO, COUPLED_SECTION as SECTION, COUPLED_WALL as WALL, GAS, LIQUID,
+                                   coupled_scene)
 from varint.scene.text import to_toml
-from test_coupled_tube import GAS, LIQUID, BARO, SECTION, WALL, coupled_scene, liquid_cantilever
 
 SPIN = {"curvature": [0.3, 1.0, 0.5], "angular_velocity": [0.0, 0.0, 3.0]}
 
@@ -34,8 +35,9 @@ def _model(fluid=GAS, wall="dynamic", law="linear", gravity=None, **kw):
     w = None if wall is None else {"model": wall, "law": law}
     if law == "tube-law":
         w.update(stiffness=2e5, tension=1e-3)
-    return coupled_scene(nodes=kw.pop("nodes", 7), parcels=kw.pop("parcels", 8), fluid=fluid, wall=w,
-                         initial=kw.pop("initial", SPIN), velocity=kw.pop("velocity", 2.0), gravity=gravity, **kw)
+    return build_model(coupled_scene(nodes=kw.pop("nodes", 7), parcels=kw.pop("parcels", 8), fluid=fluid, wall=w,
+                                     initial=kw.pop("initial", SPIN), velocity=kw.pop("velocity", 2.0), gravity=gravity,
+                                     **kw))
 
 
 # -- kernels --------------------------------------------------------------------------------------------------------
@@ -106,8 +108,8 @@ CASES = {"gas-rigid": dict(fluid=GAS, wall=None), "gas-dynamic": dict(fluid=GAS)
 def _case_model(name, **kw):
     c = dict(CASES[name])
     if name == "gas-constrained":
-        return coupled_scene(nodes=7, parcels=8, fluid=GAS, wall={"model": "dynamic"}, initial=c["initial"], velocity=1.0,
-                             section=dict(SECTION, constraint="inextensible_unshearable"), **kw)
+        return build_model(coupled_scene(nodes=7, parcels=8, fluid=GAS, wall={"model": "dynamic"}, initial=c["initial"],
+                                         velocity=1.0, section=dict(SECTION, constraint="inextensible_unshearable"), **kw))
     return _model(**c, **kw)
 
 
@@ -502,8 +504,6 @@ def test_a_dead_tip_torque_turns_j_by_h_t_per_step_and_does_its_work(case):
     """The tip torque of varint.schemes.em_rod.tip_torque_forces on the free spinning tube: each step changes J by exactly
     h T (Euler's second law; measured to 7e-16 of abs(J)) and P not at all (2e-15); E - (the torque's work) is conserved to
     the solver's tolerance (3.7e-13 of K0 with the gas, whose internal energy is 10^3 K0; 9e-15 with water)."""
-    from test_coupled_tube import SECTION
-
     h, T = 2e-3, np.array([0.2, -0.1, 0.3])
     st = TubeEMStep(_case_model(case, section=dict(SECTION, load={"torque": list(T)})), h)
     E0, P0, K0 = st.energy(), st.linear_momentum(), st.kinetic_energy()

@@ -10,30 +10,17 @@ from varint import Simulation
 from varint.exact.waves import dispersion_branches, webster_frequencies
 from varint.analysis.linear import modes
 
-from varint.scene.standard import AIR, gas_scene
+from varint.scene.standard import AIR, AIR_SOUND_SPEED as C0, gas_scene
 from helpers import make
-from varint.analysis.signals import zero_crossing_frequency
+from varint.analysis.signals import dominant_wavenumber_index
+
+# the frequency of a fluid field's projection on cos(k x) over a run: scripts/_runs.py, shared with
+# scripts/validation_report.py
+from _runs import standing_wave_frequency
 
 pytestmark = pytest.mark.validation
 
-P0, RHO0 = 101325.0, 1.225
-C0 = math.sqrt(1.4 * P0 / RHO0)
-
-
-def _standing_wave_frequency(model, sim, steps, k, field="pressure"):
-    """Frequency of the projection of a field on cos(k x) over a time series."""
-    t, a = [], []
-    for _ in range(steps):
-        sim.step()
-        f = sim.fields()
-        s = f["fluid/s"]
-        if field == "pressure":
-            x, y = 0.5 * (s[1:] + s[:-1]), f["fluid/pressure"]
-        else:
-            x, y = s[:-1], f["fluid/velocity"][:-1]
-        t.append(sim.state.t)
-        a.append(np.sum((y - np.mean(y)) * np.cos(k * x)))
-    return zero_crossing_frequency(np.array(t), np.array(a))
+RHO0 = AIR["density"]
 
 
 @pytest.mark.parametrize("scheme", ["midpoint", "trapezoidal", "energy-momentum"])
@@ -43,15 +30,8 @@ def test_rigid_tube_sound_speed(scheme):
     pert = [{"field": "pressure", "shape": "cosine", "amplitude": 10.0, "wavelength": 1.0}]
     _, model = make(gas_scene(nodes=65, parcels=64, wall=False, ends="periodic", h=2e-6, perturbation=pert, scheme=scheme))
     sim = Simulation(model)
-    omega = _standing_wave_frequency(model, sim, steps=int(3.2 * 2 * math.pi / (C0 * k) / 2e-6), k=k)
+    omega = standing_wave_frequency(model, sim, steps=int(3.2 * 2 * math.pi / (C0 * k) / 2e-6), k=k)
     assert omega / k == pytest.approx(C0, rel=5e-4)
-
-
-def _fourier_index(v):
-    """Dominant wavenumber index of a periodic nodal vector."""
-    F = np.abs(np.fft.rfft(v))
-    F[0] = 0.0
-    return int(np.argmax(F))
 
 
 def test_expandable_tube_dispersion_both_branches():
@@ -60,7 +40,7 @@ def test_expandable_tube_dispersion_both_branches():
     res, X = modes(m, count=m.tube.nq, vectors=True)
     freq = np.array([r["frequency"] for r in res])
     Rpart = X[m.layout["R"], :]
-    idx = np.array([_fourier_index(Rpart[:, i]) for i in range(X.shape[1])])
+    idx = np.array([dominant_wavenumber_index(Rpart[:, i]) for i in range(X.shape[1])])
     w = m.tube.wall
     checked = 0
     for j in (1, 2, 3):
@@ -91,7 +71,7 @@ def test_dispersion_time_domain_low_branch():
     _, model = make(d)
     sim = Simulation(model)
     steps = int(2.2 * 2 * math.pi / lo / 1e-6)
-    omega = _standing_wave_frequency(model, sim, steps, k)
+    omega = standing_wave_frequency(model, sim, steps, k)
     assert omega == pytest.approx(lo, rel=5e-3)
 
 
@@ -108,7 +88,7 @@ def test_moens_korteweg_speed():
          "time": {"step": 2e-4, "end": 1.0}}
     _, model = make(d)
     sim = Simulation(model)
-    omega = _standing_wave_frequency(model, sim, steps=int(2.2 * 2 * math.pi / (c_mk * k) / 2e-4), k=k, field="velocity")
+    omega = standing_wave_frequency(model, sim, steps=int(2.2 * 2 * math.pi / (c_mk * k) / 2e-4), k=k, field="velocity")
     assert omega / k == pytest.approx(c_mk, rel=5e-3)
 
 

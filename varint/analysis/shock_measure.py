@@ -15,7 +15,17 @@ from ..exact.shocks import ShockError, ideal_gas_state, relative_residuals, rh_r
 from ..run.io import read_run
 from ..terms.coupled import element_strains
 
-__all__ = ["measure_shock", "measure_coupled_shock"]
+__all__ = ["measure_shock", "measure_coupled_shock", "density_l1"]
+
+
+def density_l1(s, rho, exact, t, samples=100001):
+    """L1 distance on [0, 1] between the parcels' piecewise-constant density (``rho`` on the parcels between the
+    labels ``s``) and the exact one at time ``t`` (a :class:`varint.exact.shocks.RiemannSolution`, diaphragm at 0.5),
+    integrated on ``samples`` - 1 equal sub-intervals."""
+    x = np.linspace(0.0, 1.0, samples)
+    xc = 0.5 * (x[1:] + x[:-1])
+    k = np.clip(np.searchsorted(s, xc) - 1, 0, len(rho) - 1)
+    return float(np.sum(np.abs(rho[k] - exact.sample(xc, t, 0.5)[0])) * (x[1] - x[0]))
 
 
 def _crossing(s_centres, p, i, level):

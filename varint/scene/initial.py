@@ -41,9 +41,9 @@ class InitialFields:
         rho = np.full(x.shape, f.density, dtype=np.float64)
         if eos is None:  # incompressible: density is constant, there is no entropy
             return rho, np.zeros_like(rho)
-        if f.traveling_shock is not None:  # [initial.traveling_shock]: the wave's profile at t = 0
-            wave = f.traveling_shock.wave
-            _, rho, _, p = wave.profile(x - f.traveling_shock.position)
+        ts = f.get("traveling_shock")  # set by the validator with [initial.traveling_shock] only
+        if ts is not None:  # [initial.traveling_shock]: the wave's profile at t = 0
+            _, rho, _, p = ts.wave.profile(x - ts.position)
             return rho, eos.entropy(rho, p)
         p = np.full(x.shape, f.pressure, dtype=np.float64)
         S_base = eos.entropy(f.density, f.pressure) if eos.has_entropy else 0.0
@@ -83,8 +83,9 @@ class InitialFields:
 
     def velocity(self, x):
         x = np.asarray(x, dtype=np.float64)
-        if self.fluid.traveling_shock is not None:
-            return self.fluid.traveling_shock.wave.profile(x - self.fluid.traveling_shock.position)[2]
+        ts = self.fluid.get("traveling_shock")  # set by the validator with [initial.traveling_shock] only
+        if ts is not None:
+            return ts.wave.profile(x - ts.position)[2]
         u = np.full(x.shape, self.fluid.velocity, dtype=np.float64)
         for r in self.fluid.initial:
             if r.velocity is not None:

@@ -205,9 +205,31 @@ NOT_YET = {}
 
 
 class Section(dict):
-    """A resolved scene section: a dict whose keys also read as attributes."""
+    """A resolved scene section: a dict whose keys also read as attributes.
 
-    __getattr__ = dict.get
+    The validator fills every key :data:`SCHEMA` declares for the section (its value, its default or None), so an
+    attribute that is not a key is a misspelling: reading it raises AttributeError naming the section and the key
+    (``fluid.densty: no such key in this section``) instead of reading None.  A key the code adds only in some
+    scenes (``fluid.traveling_shock``) is read with ``section.get(key)`` or ``key in section``.
+    """
+
+    #: where the section sits in the scene ("fluid", "fluid.ends", "rod.perturbation[0]"), for the message
+    _path = "(section)"
+
+    def __getattr__(self, name):
+        if name.startswith("_"):  # protocols (copy, pickle, numpy) look their hooks up here: not keys
+            raise AttributeError(name)
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(f"{self._path}.{name}: no such key in this section") from None
+
+    @classmethod
+    def at(cls, path, *args, **kwargs):
+        """A Section at ``path`` in the scene, with the items of ``dict(*args, **kwargs)``."""
+        out = cls(*args, **kwargs)
+        out._path = path
+        return out
 
     def __repr__(self):  # pragma: no cover - debugging aid
         return f"Section({dict.__repr__(self)})"
@@ -313,7 +335,7 @@ class _Validator:
         """Check one table against its declared keys; returns a Section."""
         keys = {k.name: k for k in SCHEMA[schema_name]}
         subtables = {n.split(".", 1)[1].rstrip("[]") for n in SCHEMA if n.startswith(schema_name + ".") and schema_name}
-        out = Section()
+        out = Section.at(path or "(top level)")
         if not isinstance(raw, dict):
             self.bad(path or "(top level)", f"must be a table, got {type(raw).__name__}")
             raw = {}
@@ -410,8 +432,8 @@ class _Validator:
             if req not in raw:
                 self.bad(req, "missing section (required)")
         # a missing required section is one problem, not one per key inside it
-        tube = self.section(raw["tube"], "tube", "tube") if "tube" in raw else Section()
-        time = self.section(raw["time"], "time", "time") if "time" in raw else Section()
+        tube = self.section(raw["tube"], "tube", "tube") if "tube" in raw else Section.at("tube")
+        time = self.section(raw["time"], "time", "time") if "time" in raw else Section.at("time")
         output = self.section(raw.get("output", {}), "output", "output")
         env = self.section(raw.get("environment", {}), "environment", "environment")
         wall = fluid = None
@@ -447,8 +469,8 @@ class _Validator:
                 if name != "traveling_shock":
                     self.unknown("initial", name, ["traveling_shock"])
             if "traveling_shock" in ri:
-                initial = Section(traveling_shock=self.section(ri["traveling_shock"], "initial.traveling_shock",
-                                                                "initial.traveling_shock"))
+                ts = self.section(ri["traveling_shock"], "initial.traveling_shock", "initial.traveling_shock")
+                initial = Section.at("initial", traveling_shock=ts)
         shock = self.section(raw["shock_capturing"], "shock_capturing", "shock_capturing") if "shock_capturing" in raw else None
         scene = Scene(title=top.get("title"), tube=tube, time=time, output=output, environment=env, wall=wall,
                       fluid=fluid, rod=rod, initial=initial, shock_capturing=shock)
@@ -543,8 +565,11 @@ class _Validator:
         except VarintError as exc:
             self.bad(f"{kp}.speed", str(exc))
             return
-        f["traveling_shock"] = Section(wave=wave, position=x0)
-        w["perturbation"] = [Section(field="R", shape="traveling_shock", wave=wave, position=x0)]
+        f["traveling_shock"] = Section.at("fluid.traveling_shock", wave=wave, position=x0)
+        # (every declared key present, as in a perturbation read from the file; the internal shape needs none of them)
+        declared = {k.name: None if k.default is REQUIRED else k.default for k in SCHEMA["wall.perturbation[]"]}
+        w["perturbation"] = [Section.at("wall.perturbation[0]", declared, field="R", shape="traveling_shock", wave=wave,
+                                        position=x0)]
 
     def rod_checks(self, sc):
         rod = sc.rod
