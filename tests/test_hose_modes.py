@@ -160,6 +160,35 @@ def test_constrained_modes_keep_the_constraint_and_the_beam_frequency(hose):
     assert res[0]["frequency"] == pytest.approx(ps.beam_wavenumbers("clamped-free", 1)[0] ** 2, rel=1e-3)
 
 
+def sagging(u, nodes, g, constraint=CONSTRAINED):
+    """The horizontal flowing cantilever (beta = 0.2) under a transverse gravity g: its model."""
+    text = pipe_scene_text(beta=0.2, u=u, nodes=nodes, constraint=constraint)
+    return build_model(parse_scene(text.replace("[time]", f"[environment]\ngravity = [0.0, {-g!r}, 0.0]\n[time]")))
+
+
+def test_bent_steady_state_against_the_linear_theory_and_the_stiff_shearable_tube():
+    """A bent base state, where the element forces have shear components: the constrained flowing cantilever sagging
+    under a small weight against the linear theory EI w'''' + M U^2 w'' = q (as tests/test_flowing_modes.py; measured
+    tip errors at 20 / 40 elements -2.3e-3 / -5.3e-4 (u = 3), +8.8e-3 / +1.9e-3 (u = 6): order 2), and under a large
+    one (tip 0.77 L below the clamp) against the shearable tube with EA = kGA = 1e7: the shape to 1e-6 L, the first
+    mode about it to 1e-5 (measured 1.0e-6 and 9e-7)."""
+    g = 1e-4
+    for u in (3.0, 6.0):
+        exact = -g / u ** 2 * (0.5 - (np.cos(u) + u * np.sin(u) - 1.0) / u ** 2)
+        e20, e40 = (flowing_static(sagging(u, n, g))[0][1][-1, 1] / exact - 1 for n in (21, 41))
+        assert abs(e40) < 2.5e-3 and np.log2(abs(e20 / e40)) > 1.8
+    tips, first = [], []
+    for constraint in (CONSTRAINED, "none"):
+        lin = flowing_linearization(sagging(3.0, 21, 20.0, constraint), about="static")
+        assert lin["unbalanced"] < 1e-12
+        tips.append(lin["r"][-1])
+        m = first_order_modes(lin["K"], lin["C"], lin["M"], 1)[0]
+        first.append(m["growth_rate"] + 1j * m["frequency"])
+    assert tips[0][1] == pytest.approx(-0.7714, abs=1e-4)
+    assert np.max(np.abs(tips[0] - tips[1])) < 3e-6
+    assert abs(first[0] - first[1]) < 1e-5 * abs(first[0])
+
+
 def test_cli_static_and_modes_of_the_garden_hose(tmp_path, capsys):
     """``varint static`` on the hose writes its steady flowing state as one record (the rod at rest and straight,
     the liquid's pressure hydrostatic from the free jet, the rod's multipliers the wall's tension m g (L - s));
