@@ -139,7 +139,7 @@ def test_liquid_held_at_the_levels_has_no_alternating_mode():
     for _ in range(steps):
         sim.step()
         cfg, Lam, r, _ = sim.stepper._coupled_levels()
-        level.append(np.max(np.abs(sim._coupled_volumes(cfg, Lam, r) / t.V0 - 1.0)))
+        level.append(np.max(np.abs(sim.stepper._coupled_volumes(cfg, Lam, r) / t.V0 - 1.0)))
         mo = sim.monitors()
         energy.append(abs(mo["energy"] - m0["energy"]) / m0["energy_fluid_kinetic"])
         rr = sim.fields()["rod/r"][:-1]

@@ -210,6 +210,8 @@ def cmd_static(args):
     model = build_model(scene)
     if model.rod is None:
         raise _VE(f"{args.scene}: static equilibrium is available for scenes with a [rod] only in this version")
+    if model.coupled and model.tube.open_ends:
+        return _static_flowing(scene, model, out)
     if model.coupled:
         return _static_coupled(args, scene, model, out)
     spinning = bool(np.any(model.rod.spin))
@@ -264,6 +266,45 @@ def _static_coupled(args, scene, model, out):
     tip = r[-1]
     print(f"wrote {out}: static equilibrium of the coupled tube in {info.get('iterations', '?')} Newton iterations; "
           f"tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
+    return 0
+
+
+def _static_flowing(scene, model, out):
+    """``varint static`` of a tube conveying fluid (open ``fluid.ends``): its steady flowing state under gravity
+    (varint.analysis.flowing_modes.flowing_static, docs/theory.md §13.6) as one record: the rod at rest in the steady
+    shape, the liquid flowing through it at the inlet's speed, its gauge pressures those of the steady plug flow,
+    mu = p - p_ext = rho g.(X(s) - X(L)) at each parcel's centre (the free jet at p_ext), and the inextensible rod's
+    multipliers the wall's tension: flowing_static's element forces are the effective axial force T - pA (it has no
+    pressure unknown), while in the time-stepped tube the pressures act on the rod through the parcels' stretched
+    volumes, so its multipliers n are T = (T - pA) + mu A along the element's axis (docs/theory.md §13.6).  What
+    flowing_static cannot treat (a gas, a [wall], ...) is refused in one line naming the key."""
+    from .analysis.flowing_modes import flowing_static, pipe_parameters
+    from .run.simulation import Simulation
+
+    (Lam, r), info = flowing_static(model)
+    rod, t = model.rod, model.tube
+    rod.set_configuration(Lam, r, rest=True)
+    # the parcels hold their volumes on the steady centreline, as in a scene that starts in that shape (varint.model.model)
+    t.coupled_rebase(model.open_volumes(np.r_[t.piston, t.q_init], Lam, r))
+    sim = Simulation(model)  # the initial state: the liquid flowing at U along the steady centreline, the rod at rest
+    st = sim.state
+    lam = st.lam.copy()
+    cfg = t.config(np.concatenate([st.q[model.tube_q], lam[model.tube_lam]]))
+    g = np.asarray(rod.g, dtype=float)
+    X = model.centreline(0.5 * (cfg.s[:-1] + cfg.s[1:]), r)[3]
+    lam[model.tube_lam] = (t.m / t.V0) * ((X - r[-1]) @ g)
+    par = pipe_parameters(model)
+    if rod.constrained:
+        n = info["element_forces"].copy()
+        Xe = model.centreline((np.arange(rod.N) + 0.5) * rod.ds, r)[3]
+        n[:, 0] += par["M"] * ((Xe - r[-1]) @ g)  # + mu A: the wall's tension T
+        lam[model.rod_lam] = n[:, :rod.ncomp].ravel()
+    st.lam = lam
+    U = par["U"]
+    _write_static(out, scene, sim, info["load_steps"], {"flow_velocity": U})
+    tip = r[-1]
+    print(f"wrote {out}: steady flowing state (U = {U:.6g} m/s) in {info['iterations']} Newton iterations over "
+          f"{info['load_steps']} load steps; tip at ({tip[0]:.6g}, {tip[1]:.6g}, {tip[2]:.6g}) m")
     return 0
 
 
@@ -339,7 +380,8 @@ def build_parser():
     pl.add_argument("--animate", action="store_true",
                     help="also write FILE_anim.gif: the rod's centreline in 3D over time (the fluid's labels by pressure)")
     pl.set_defaults(func=cmd_plot)
-    s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation), written as one frame")
+    s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation; a tube "
+                                      "conveying fluid: its steady flowing state), written as one frame")
     s.add_argument("scene")
     s.add_argument("-o", "--output", help="run file (default: SCENE_static.h5)")
     s.add_argument("--force", action="store_true", help="replace an existing file")

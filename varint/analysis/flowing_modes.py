@@ -25,6 +25,13 @@ Supported ends remove their rows (a pinned outlet has no transverse follower for
 S r = 0 (Catmull-Rom is exact on straight lines), so the straight flowing tube is an equilibrium with no base
 tension: the axial follower force -M U^2 t(L) balances the axial pull +M U^2 t(L) of the centrifugal term.
 
+The inextensible, unshearable rod (``rod.constraint = "inextensible_unshearable"``, docs/theory.md §9a; the garden
+hose): the steady state solves the KKT system of the force balance with the constraint Gamma = chi and its element
+forces lambda (as varint/model/statics.py ``static_equilibrium`` for the rod alone), and the linearisation adds the
+geometric stiffness H_lambda of the base state's element forces and restricts the motion to the null space Z of the
+constraint's Jacobian G:  (Z^T M Z) yddot + (Z^T C Z) ydot + (Z^T (K - H_lambda) Z) y = 0,  q = Z y
+(docs/theory.md §13.6, "The inextensible, unshearable tube").
+
 Base state: ``about="initial"``: the scene's (straight) initial state.  ``about="static"``: the steady state
 under gravity, Newton on the rod's generalised force plus the liquid's weight M g int N_i and the steady flow's
 force -U^2 S r (the centrifugal load of a bent steady state), with load continuation; the rod's internal force
@@ -50,36 +57,33 @@ __all__ = ["flow_matrices", "flowing_linearization", "flowing_modes", "flowing_s
 _GAUSS = 4
 
 
-def refuse_flowing(model):
-    """One-line errors for what this linearisation does not cover (before any matrix is built)."""
+def refuse_flowing(model, what="modes"):
+    """One-line errors for what this linearisation (and :func:`flowing_static`) does not cover, before any matrix is
+    built; ``what`` names the caller in the messages ("modes", "static equilibrium")."""
     sc = model.scene
     t, rod = model.tube, model.rod
     ends = sc.fluid.ends
     if not t.incompressible:
-        raise SolverError(f"modes: a flowing {sc.fluid.model} is not available (fluid.model): the modes of a tube "
-                          "conveying fluid are for an incompressible liquid")
+        raise SolverError(f"{what}: a flowing {sc.fluid.model} is not available (fluid.model): the {what} of a "
+                          "tube conveying fluid are for an incompressible liquid")
     if t.has_wall:
-        raise SolverError("modes: a flowing tube with a [wall] is not available: the modes of a tube conveying fluid are "
-                          "for a rigid wall (remove [wall])")
+        raise SolverError(f"{what}: a flowing tube with a [wall] is not available: the {what} of a tube conveying "
+                          "fluid are for a rigid wall (remove [wall])")
     if sc.tube.area_table is not None:
         raise SolverError("tube.area_table: a flowing tube needs a uniform section (the flow speed would vary along it)")
     if ends.inflow != "velocity":
-        raise SolverError("fluid.ends.inflow: the modes of a flowing tube need a velocity inlet (\"velocity\"), which "
-                          "fixes the liquid's speed")
+        raise SolverError(f"fluid.ends.inflow: the {what} of a flowing tube need a velocity inlet (\"velocity\"), "
+                          "which fixes the liquid's speed")
     if ends.outflow_pressure != sc.environment.external_pressure:
-        raise SolverError(f"fluid.ends.outflow_pressure: the modes of a flowing tube are for a free jet at the external "
+        raise SolverError(f"fluid.ends.outflow_pressure: the {what} of a flowing tube are for a free jet at the external "
                           f"pressure ({sc.environment.external_pressure:g} Pa), got {ends.outflow_pressure:g} Pa")
-    if rod.constrained:
-        raise SolverError("modes: a flowing tube with rod.constraint = \"inextensible_unshearable\" is not available "
-                          "(use a stiff axial and shear stiffness instead)")
     if rod.periodic:
-        raise SolverError("modes: a flowing tube with periodic rod ends is not available")
+        raise SolverError(f"{what}: a flowing tube with periodic rod ends (rod.ends) is not available")
     if np.any(rod.spin) or np.any(rod.velocity):
-        raise SolverError("modes: a flowing tube is linearised about its steady flow: rod.initial.velocity and "
+        raise SolverError(f"{what}: a flowing tube is linearised about its steady flow: rod.initial.velocity and "
                           "rod.initial.angular_velocity must be zero")
     if rod.free:
-        raise SolverError("modes: a flowing tube with both rod.ends free has no steady state to linearise about; clamp "
-                          "or pin an end")
+        raise SolverError(f"{what}: a flowing tube with both rod.ends free has no steady state; clamp or pin an end")
 
 
 def pipe_parameters(model):
@@ -135,15 +139,21 @@ def _flow_force(rod, r, S, W, g, U, lf=1.0):
 def flowing_static(model, steps=4, tol=1e-10, max_iter=40, velocity=None):
     """The steady state of the flowing tube under gravity: Newton on rod force + liquid weight + steady flow force
     = 0 in the rod's chart (Lambda cay(sigma), r + dr), with load continuation in gravity and U^2 together
-    (varint/model/statics.py ``load_continuation``); ``velocity`` overrides the inlet's U.  Returns
-    ((Lambda, r), info)."""
+    (varint/model/statics.py ``load_continuation``); ``velocity`` overrides the inlet's U.
+
+    The inextensible, unshearable rod: Newton on the KKT system [[dF/dz + H_lambda, -ds G^T], [G, 0]] of that force
+    balance with the constraint Gamma = chi and its element forces lambda (docs/theory.md §13.6), as
+    ``static_equilibrium`` does for the rod alone; ``info["element_forces"]`` (N, 3) holds lambda (body frame; the
+    first ``rod.ncomp`` components are used).
+    Returns ((Lambda, r), info) with info's ``load_steps`` and ``iterations``."""
     import warnings
 
     import scipy.sparse.linalg as spla
 
     from ..model.statics import force_jacobian, potential_gradient, retract, load_continuation
+    from ..terms.rod_constraint import constraint_static
 
-    refuse_flowing(model)
+    refuse_flowing(model, "static equilibrium")
     rod = model.rod
     par = pipe_parameters(model)
     _, _, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
@@ -151,20 +161,36 @@ def flowing_static(model, steps=4, tol=1e-10, max_iter=40, velocity=None):
     g, mask = np.asarray(rod.g, dtype=float), rod.mask
     Sz = _on_rod(S, rod)
     scale = np.where(np.flatnonzero(mask.ravel()) % 6 < 3, rod.ds, 1.0)
+    nz, ncomp = rod.nz, rod.ncomp
 
     def newton_step(state, lf):
-        Lam, r = state
+        Lam, r, lam = state
         f = (potential_gradient(rod, Lam, r, lf) + _flow_force(rod, r, S, W, g, U, lf))[mask]
         J = force_jacobian(rod, Lam, r, lf) - lf * U * U * Sz
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", spla.MatrixRankWarning)
-            dz = -spla.spsolve(sp.csc_matrix(J), f)
+            if rod.constrained:
+                # the force balance with the constraint forces -ds G^T lam, and Gamma = chi
+                c, G, Fc, Hc = constraint_static(rod, Lam, r, lam)
+                K = sp.bmat([[J + Hc, -rod.ds * G.T], [G, None]]).tocsc()
+                d = -spla.spsolve(K, np.concatenate([f + Fc, c]))
+                dz = d[:nz]
+                if np.all(np.isfinite(d)):
+                    lam = lam.copy()
+                    lam[:, :ncomp] += d[nz:].reshape(rod.N, ncomp)
+            else:
+                dz = -spla.spsolve(sp.csc_matrix(J), f)
         if not np.all(np.isfinite(dz)):
             return state, None
-        return retract(Lam, r, dz, mask), bool(np.max(np.abs(dz) / scale) < tol)
+        Lam, r = retract(Lam, r, dz, mask)
+        return (Lam, r, lam), bool(np.max(np.abs(dz) / scale) < tol)
 
-    state, n_steps, iters = load_continuation(lambda: (rod.Lam0.copy(), rod.r0.copy()), newton_step, steps, max_iter)
-    return state, {"load_steps": n_steps, "iterations": iters}
+    (Lam, r, lam), n_steps, iters = load_continuation(
+        lambda: (rod.Lam0.copy(), rod.r0.copy(), np.zeros((rod.N, 3))), newton_step, steps, max_iter)
+    info = {"load_steps": n_steps, "iterations": iters}
+    if rod.constrained:
+        info["element_forces"] = lam.copy()
+    return (Lam, r), info
 
 
 def flowing_linearization(model, about="initial", velocity=None):
@@ -172,9 +198,13 @@ def flowing_linearization(model, about="initial", velocity=None):
 
     ``velocity``: the flow speed U (m/s) in place of the scene's inlet velocity (0 allowed: the tube full of
     liquid at rest, whose lateral inertia is the same M per length).
-    Returns a dict: ``M``, ``C``, ``K`` (sparse nz x nz; C and K not symmetric), ``Lam``, ``r`` (the base state),
-    ``parameters`` (:func:`pipe_parameters`) and ``unbalanced`` (the generalised force at the base state over the
-    elastic force of a unit strain: ~0 at an equilibrium).
+    Returns a dict: ``M``, ``C``, ``K`` (C and K not symmetric), ``Lam``, ``r`` (the base state), ``parameters``
+    (:func:`pipe_parameters`), ``unbalanced`` (the generalised force at the base state over the elastic force of a
+    unit strain: ~0 at an equilibrium) and ``Z``: None, and M, C, K are sparse (nz x nz) on the rod's unknowns; or,
+    for the inextensible, unshearable rod, the orthonormal basis (nz x nz - rank G) of the null space of the
+    constraint's Jacobian G, and M, C, K are the dense restrictions Z^T M Z, Z^T C Z, Z^T (K - H_lambda) Z
+    (H_lambda: the geometric stiffness of the base state's element forces ``element_forces``, zero about the
+    initial state; docs/theory.md §13.6), whose eigenvectors y give the displacements Z y.
     """
     from ..model.statics import force_jacobian, potential_gradient, lumped_mass
 
@@ -183,21 +213,37 @@ def flowing_linearization(model, about="initial", velocity=None):
     par = pipe_parameters(model)
     if velocity is not None:
         par = dict(par, U=float(velocity), u=float(velocity) * par["L"] * np.sqrt(par["M"] / par["EI"]))
+    lam = np.zeros((rod.N, 3))
     if about == "static":
-        (Lam, r), _ = flowing_static(model, velocity=par["U"])
+        (Lam, r), info = flowing_static(model, velocity=par["U"])
+        lam = info.get("element_forces", lam)
     else:
         Lam, r = rod.Lam0, rod.r0
     U = par["U"]
     Mf, C1, S, W = flow_matrices(rod.N + 1, rod.ds, par["M"])
     Kr = -force_jacobian(rod, Lam, r)
+    force = potential_gradient(rod, Lam, r) + _flow_force(rod, r, S, W, np.asarray(rod.g, dtype=float), U)
+    force = force[rod.mask]
+    if rod.constrained:
+        from ..terms.rod_constraint import constraint_static
+
+        _, G, Fc, Hc = constraint_static(rod, Lam, r, lam)
+        Kr = Kr - Hc
+        force = force + Fc
     Kr = (0.5 * (Kr + Kr.T)).tocsr()
     Mz = sp.diags(lumped_mass(rod)[rod.mask]) + _on_rod(Mf, rod)
+    Mz = (0.5 * (Mz + Mz.T)).tocsr()
     C = (2.0 * U * _on_rod(C1, rod)).tocsr()
     K = (Kr + U * U * _on_rod(S, rod)).tocsr()
-    force = (potential_gradient(rod, Lam, r) + _flow_force(rod, r, S, W, np.asarray(rod.g, dtype=float), U))[rod.mask]
+    Z = None
+    if rod.constrained:
+        # the motions that keep Gamma = chi to first order: q = Z y, G Z = 0 (docs/theory.md §13.6)
+        Z = sla.null_space(G.toarray())
+        Mz, C, K = (Z.T @ (X @ Z) for X in (Mz, C, K))
+        Mz = 0.5 * (Mz + Mz.T)
     unit = np.where(np.flatnonzero(rod.mask.ravel()) % 6 < 3, rod.ds, 1.0)
     size = float(np.max(np.abs(Kr.diagonal()) * unit))
-    return {"M": (0.5 * (Mz + Mz.T)).tocsr(), "C": C, "K": K, "Lam": Lam, "r": r, "parameters": par,
+    return {"M": Mz, "C": C, "K": K, "Z": Z, "Lam": Lam, "r": r, "parameters": par,
             "unbalanced": float(np.max(np.abs(force))) / size if size > 0 else 0.0}
 
 
@@ -280,6 +326,9 @@ def _sparse_mu(K, C, M, shift, k):
 def flowing_modes(model, count=20, about="initial", vectors=False, method="auto"):
     """The ``count`` lowest modes of the flowing tube (see the module notes); :func:`flowing_linearization`."""
     lin = flowing_linearization(model, about)
-    return first_order_modes(lin["K"], lin["C"], lin["M"], count, vectors, method=method)
+    res = first_order_modes(lin["K"], lin["C"], lin["M"], count, vectors, method=method)
+    if vectors and lin["Z"] is not None:  # the constrained rod: displacements q = Z y
+        return res[0], lin["Z"] @ res[1]
+    return res
 
 
