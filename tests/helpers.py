@@ -93,7 +93,12 @@ def invariant_error(name, model, mons, fields):
     """(error, tolerance) of the declared invariant ``name`` over a run's monitors ``mons`` and fields ``fields``
     (lists, one entry per record); an invariant without a check here is an AssertionError."""
     E = _series(mons, "energy")
-    terms = [abs(float(v)) for m in mons for k, v in m.items() if k.startswith("energy_") or k == "kinetic_energy"]
+    # the energy that moves: the largest kinetic energy and each potential's variation over the run (never |E0|,
+    # which a gas's internal energy or a liquid's p V dominates)
+    kinetic = max(float(np.max(np.abs(_series(mons, "kinetic_energy")))), 0.0)
+    pot = [k for k in mons[0] if k.startswith("energy_") and "kinetic" not in k]
+    moving = kinetic + sum(float(np.ptp(_series(mons, k))) for k in pot)
+    terms = [moving]
     Pscale, Jscale = _momentum_scale(model, mons)
     g = _gravity(model)
     ghat = g / np.linalg.norm(g) if np.any(g) else None
