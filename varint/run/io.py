@@ -58,6 +58,7 @@ UNITS = {
     "monitors/constraint_residual": "1",
     "monitors/rod_constraint_residual": "1",
     "monitors/newton_iterations": "1",
+    "monitors/halved_steps": "1",
     "monitors/frame_orthogonality": "1",
     # open ends (docs/theory.md §13.4): what crossed the ends since t = 0, and the balances
     "monitors/energy_flux": "J",
@@ -428,6 +429,8 @@ def summary(path):
         d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)
         d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300)) if "mass" in mon else None
         d["newton_iterations_max"] = int(np.max(mon["newton_iterations"])) if "newton_iterations" in mon else None
+        if "halved_steps" in mon:  # step control (docs/theory.md §4b): steps that failed at h, taken as half steps
+            d["halved_steps"] = int(mon["halved_steps"][-1])
         if "energy_balance" in mon:  # open ends (docs/theory.md §13.4): the balances against the boundary fluxes
             for kind, val, flux in (("energy", mon["energy"], mon["energy_flux"]),
                                     ("momentum", mon["linear_momentum"][:, 0], mon["momentum_flux"][:, 0]),

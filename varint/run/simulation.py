@@ -62,6 +62,7 @@ class Simulation:
         """Invariants, energies and the last step's Newton iterations at the current level."""
         out = self.stepper.monitors()
         out["newton_iterations"] = self.stats.iterations
+        out["halved_steps"] = self.stats.halved_steps
         return out
 
     def fields(self):

@@ -182,6 +182,9 @@ SCHEMA = MappingProxyType({
             choices=("midpoint", "trapezoidal", "energy-momentum")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
+        Key("adaptive", "bool", True, "", "step control: a step that fails at time.step (Newton, a frame turning by more "
+            "than 90 degrees, a folded lattice) is taken as two half steps (down to 1/8), then the run returns to "
+            "time.step; the monitors count them (halved_steps); false: stop at the first failure (docs/theory.md §4b)"),
     ),
     "shock_capturing": (
         Key("quadratic", "float", 1.0, "", "c_Q of the von Neumann-Richtmyer viscous pressure Q = rho (c_Q^2 du^2 + c_L c abs(du)), "
@@ -388,6 +391,11 @@ class _Validator:
                 near = difflib.get_close_matches(x, k.choices, n=1)
                 hint = f" (did you mean '{near[0]}'?)" if near else ""
                 self.bad(kp, f"unknown value {_fmt(x)}; choose one of {', '.join(k.choices)}{hint}")
+                return None
+            return x
+        if k.kind == "bool":
+            if not isinstance(x, bool):
+                self.bad(kp, f"must be true or false, got {_fmt(x)}")
                 return None
             return x
         if k.kind == "vec3":

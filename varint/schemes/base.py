@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from .state import State
 
-__all__ = ["Scheme", "Stepper", "StepReport", "State"]
+__all__ = ["Scheme", "Stepper", "StepReport", "State", "MAX_HALVINGS"]
 
 
 @dataclass
@@ -35,6 +35,12 @@ class StepReport:
     n_residual: int = 0
     n_jacobian: int = 0
     fallback: bool = False
+    #: the step at h failed (Newton, a chart limit, a folded lattice) and was taken as shorter steps
+    halved: bool = False
+
+
+#: how often a step may be halved when it fails at its own size (h/2, h/4, h/8; docs/theory.md §12c, §4b)
+MAX_HALVINGS = 3
 
 
 class Scheme:

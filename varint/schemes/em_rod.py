@@ -42,6 +42,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import SolverError
+from .base import MAX_HALVINGS
 from ..terms.rod import origin_shift
 
 CHI = np.array([1.0, 0.0, 0.0])
@@ -245,8 +246,6 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
     raise SolverError(f"step {n1}: Newton did not converge in {step.max_iter} iterations (update {last:.2e})")
 
 
-#: how often a step may be halved when Newton fails at its own step (h/2, h/4, h/8; docs/theory.md §12c)
-MAX_HALVINGS = 3
 
 
 def em_step(step, starts):

@@ -121,7 +121,8 @@ class EnergyMomentumStepper(LevelMonitors, Stepper):
         self.state = new
         last = self.engine.last
         # fallback 1: full Newton restarted; 2: solved from two half steps
-        return self._state, StepReport(last["iterations"], 0, last["jacobians"], last["fallback"] > 0)
+        return self._state, StepReport(last["iterations"], 0, last["jacobians"], last["fallback"] > 0,
+                                       halved=last["fallback"] == 2)
 
     def monitors(self):
         """The engine's own conserved energy and momenta; the rod alone's also the model's level monitors (mass, frames,

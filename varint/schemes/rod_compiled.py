@@ -54,6 +54,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import SolverError
+from .limits import chart_limit_error
 from .newton import newton_damped
 from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_body_rows, k_cay, k_chart_column, k_element, k_measure, unpack_level)
 
@@ -1170,11 +1171,8 @@ class FastRodStep:
                       r, origin, self.wz[0], self.idx, self.wn[0], self.wn[1], self.wn[2], self.wd[0], self.rM[:5], self.rV,
                       self.re[0], self.re[1], self.rM[5], q1, p1, v1, st[8:10])
         if st[8] > XI_MAX:
-            j = int(st[9])
-            deg = math.degrees(2.0 * math.atan(0.5 * st[8]))
             self.ci[7] = 0
-            raise SolverError(f"step {n_new} (t = {n_new * self.h:.6g} s): node {j} turns by {deg:.0f} degrees in one "
-                              "step (more than 90); reduce time.step", step=n_new, time=n_new * self.h)
+            raise chart_limit_error(m, n_new, self.h, int(st[9]), st[8])
         if self.predictor == "linear":
             self._prev = (state.n, v.copy())
         self.last = {"iterations": iters, "n_residual": nres, "n_jacobian": njac, "n_jacobian_fd": int(st[10]),

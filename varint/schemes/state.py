@@ -43,6 +43,7 @@ class StepStats:
     total_iterations: int = 0
     total_jacobians: int = 0
     fallbacks: int = 0  #: steps that needed a fallback (a damped Newton restart, or two half steps)
+    halved_steps: int = 0  #: steps that failed at h and were taken as shorter steps (step control, theory §4b)
 
     def record(self, report):
         """Add one step's :class:`varint.schemes.base.StepReport`."""
@@ -50,3 +51,4 @@ class StepStats:
         self.total_iterations += report.iterations
         self.total_jacobians += report.n_jacobian
         self.fallbacks += int(report.fallback)
+        self.halved_steps += int(report.halved)

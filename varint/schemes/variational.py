@@ -10,14 +10,14 @@ fast rod step").  Open ends move the lattice between steps (:class:`varint.schem
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from ..errors import SolverError
 from ..terms.rod import POLISH_ROD, RATE_REFRESH_ROD, XI_MAX
 from . import rod_compiled
-from .base import Scheme, Stepper, StepReport
+from .base import MAX_HALVINGS, Scheme, Stepper, StepReport
+from .limits import chart_limit_error
 from .midpoint import make_scheme
 from .monitors import LevelMonitors
 from .newton import RATE_REFRESH, newton, newton_damped
@@ -91,8 +91,14 @@ class Trapezoidal(Scheme):
 class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
     """The midpoint or trapezoidal step of one model (see the module notes); ``action`` is its discrete action."""
 
-    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None, extra_forces=()):
+    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None, extra_forces=(), depth=0):
         tcfg = model.scene.time
+        #: step control (docs/theory.md §4b): a step that fails at h is taken as two steps of h/2 (each halved again,
+        #: down to h/2**MAX_HALVINGS), then the run returns to h; ``time.adaptive = false`` forbids it
+        self.adaptive = bool(tcfg.adaptive)
+        self.depth = depth
+        self._half = None  # the stepper of h/2 (built when first needed)
+        self._last = self  # the stepper that took the last step (its discrete action evaluates that step's energy)
         self.model = model
         self.h = float(h)
         t = model.tube
@@ -313,8 +319,60 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
         return np.concatenate(parts) if parts else np.empty(0)
 
     def step(self, state):
+        """``(next state, StepReport)``: the step at h; where it fails (Newton, a frame turning by more than 90
+        degrees, a folded lattice) and step control is on, two steps of h/2 instead (docs/theory.md §4b)."""
         if state is not self._state:
             self.state = state
+        self._last = self
+        start = self._state
+        try:
+            return self._step_at_h()
+        except SolverError as exc:
+            if not self.adaptive or self.depth >= MAX_HALVINGS:
+                raise
+            failure = exc
+        self.state = start  # (the model's evolving data back to the level: a heating force may have run)
+        half = self._half_stepper()
+        try:
+            half.state = self._rescaled(start, 0.5, half.h)
+            mid, r1 = half.step(half.state)
+            end, r2 = half.step(mid)
+        except SolverError:
+            self.state = start
+            raise failure from None
+        new = self._rescaled(end, 2.0, self.h)
+        new.n, new.t = start.n + 1, (start.n + 1) * self.h
+        self._state = new
+        self._last = half._last
+        self._factor = None
+        return new, StepReport(r1.iterations + r2.iterations, r1.n_residual + r2.n_residual,
+                               r1.n_jacobian + r2.n_jacobian, True, halved=True)
+
+    def _half_stepper(self):
+        if self._half is None:
+            self._half = VariationalStepper(self.model, 0.5 * self.h, self.action.name, self.tol, self.max_iter,
+                                            self._state, self.extra_forces, depth=self.depth + 1)
+            self._half.floating_origin, self._half.rigid_polish = self.floating_origin, self.rigid_polish
+        return self._half
+
+    def _rescaled(self, st, factor, h):
+        """A copy of ``st`` whose predictor data are for steps of ``h``: the rod's per-step increments b, xi scale by
+        ``factor`` (the tube's are velocities); its level n and time as the stepper of ``h`` counts them."""
+        new = st.copy()
+        m = self.model
+        if m.rod is not None:
+            new.v[m.rod_p] *= factor
+        new.n = int(round(st.t / h))
+        return new
+
+    def monitors(self):
+        # the last step's own stepper evaluates its energy (a halved step's: the half stepper's discrete action)
+        return LevelMonitors.monitors(self._last) if self._last is not self else LevelMonitors.monitors(self)
+
+    def fields(self):
+        return LevelMonitors.fields(self._last) if self._last is not self else LevelMonitors.fields(self)
+
+    def _step_at_h(self):
         if self.compiled is not None:
             self.compiled.floating_origin = self.floating_origin  # a test may switch the floating origin off after start
             new = self.compiled.step(self._state)
@@ -342,10 +400,8 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
                 # step cannot resolve the rotation or the iteration landed on a spurious root (energy off
                 # by O(1) in tests).  Neither is a result to keep.
                 j = int(np.argmax(turn))
-                deg = math.degrees(2.0 * math.atan(0.5 * turn[j]))
                 self._factor = None
-                raise SolverError(f"{self._where(n1)}: node {j} turns by {deg:.0f} degrees in one "
-                                  "step (more than 90); reduce time.step", step=n1, time=n1 * self.h)
+                raise chart_limit_error(m, n1, self.h, j, turn[j])
         p1 = self.action.momentum_plus(st.q, z, pt)
         for force in self.action.forces:
             if hasattr(force, "after_step"):  # e.g. a viscosity heating the parcels it slowed

@@ -1,0 +1,21 @@
+"""The chart's limit, said once: a frame that turns by more than 90 degrees in one step (|xi| > XI_MAX in the Cayley
+chart, docs/theory.md §9) is not a result to keep, whichever backend of the midpoint scheme found it."""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import SolverError
+from . import em_rod
+
+__all__ = ["chart_limit_error"]
+
+
+def chart_limit_error(model, n, h, node, turn):
+    """The one-line SolverError of node ``node`` turning by the Cayley coordinate ``turn`` (> XI_MAX) at step ``n``,
+    naming the energy-momentum scheme where it covers the model (its directors have no chart limit)."""
+    deg = math.degrees(2.0 * math.atan(0.5 * turn))
+    hint = ("; reduce time.step, or step it with time.scheme = 'energy-momentum', whose directors have no chart limit "
+            "(docs/theory.md §12a)" if em_rod.supports(model) is None else "; reduce time.step")
+    return SolverError(f"step {n} (t = {n * h:.6g} s): node {node} turns by {deg:.0f} degrees in one step (more than "
+                       f"90){hint}", step=n, time=n * h)
