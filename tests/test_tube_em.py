@@ -449,7 +449,7 @@ def test_varint_check_reports_the_step_s_own_unknowns(tmp_path, capsys):
     from varint.cli import main
 
     liquid = dict(LIQUID, parcels=6)
-    for text in (_scene_text(), _scene_text(**{"fluid": liquid})):
+    for text in (_scene_text(), _scene_text(**{"fluid": liquid}), _scene_text(**{"wall": dict(WALL, model="quasistatic")})):
         path = tmp_path / "s.toml"
         path.write_text(text)
         assert main(["check", str(path), "--json"]) == 0

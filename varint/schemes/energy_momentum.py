@@ -51,8 +51,8 @@ class EnergyMomentum(Scheme):
         if rod.constrained:
             algebraic["n"] = 3 * rod.N  # the element forces that hold Gamma = chi
         if model.coupled:
-            if t.has_wall and t.wall_dynamic:
-                inertial["R"] = n1
+            if t.has_wall:  # a quasistatic wall's radii are unknowns without inertia (theory §12b)
+                (inertial if t.wall_dynamic else algebraic)["R"] = n1
             inertial["s"] = t.M - 1  # interior labels: the reference coordinate (no inertia of its own) and the position
             inertial["X"] = 3 * (t.M - 1)
             algebraic["label_constraint"] = 3 * (t.M - 1)

@@ -342,7 +342,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             raise failure from None
         new = self._rescaled(end, 2.0, self.h)
         new.n, new.t = start.n + 1, (start.n + 1) * self.h
-        self._state = new
+        self.state = new  # (the setter rebuilds this step for a lattice the half steps changed: open ends)
         self._last = half._last
         self._factor = None
         return new, StepReport(r1.iterations + r2.iterations, r1.n_residual + r2.n_residual,
