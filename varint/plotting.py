@@ -544,6 +544,38 @@ def _tube_figure(t, maps, title, scene=None):
     return fig
 
 
+def gravity_in_view(g, a, b):
+    """Gravity seen in a view whose horizontal and vertical axes are the unit vectors a and b: ``(dx, dy, normal)``,
+    the in-plane direction (unit, or (0, 0) when gravity is along the line of sight) and the component along a x b
+    over |g| (> 0: out of the view).  None without gravity."""
+    g = np.asarray(g, dtype=float)
+    gn = float(np.linalg.norm(g))
+    if gn == 0.0:
+        return None
+    v = np.array([g @ a, g @ b]) / gn
+    n = float(np.linalg.norm(v))
+    normal = float(g @ np.cross(a, b)) / gn
+    return (float(v[0] / n), float(v[1] / n), normal) if n > 0.2 else (0.0, 0.0, normal)
+
+
+def draw_gravity(ax, g, a, b):
+    """An arrow labelled "g" in the view's corner along gravity's projection (:func:`gravity_in_view`); gravity along
+    the line of sight is written as "g into / out of the view".  Returns the annotation (None without gravity)."""
+    v = gravity_in_view(g, a, b)
+    if v is None:
+        return None
+    gn = float(np.linalg.norm(g))
+    dx, dy, normal = v
+    c = np.array([0.9, 0.84])
+    if dx == 0.0 and dy == 0.0:
+        return ax.text(c[0], c[1], f"g ({gn:.3g} m/s\u00b2) {'out of' if normal > 0 else 'into'} the view",
+                       transform=ax.transAxes, ha="right", va="center", fontsize=8, color="tab:red", gid="gravity")
+    d = 0.07 * np.array([dx, dy])
+    return ax.annotate(f"g\n{gn:.3g} m/s\u00b2", xy=tuple(c + d), xytext=tuple(c - d), xycoords="axes fraction",
+                       textcoords="axes fraction", ha="center", va="center", fontsize=7, color="tab:red", gid="gravity",
+                       arrowprops=dict(arrowstyle="-|>", color="tab:red", lw=1.5))
+
+
 def _rod_figure(run, title):
     from matplotlib import cm, colormaps, colors
     from matplotlib.figure import Figure
@@ -570,33 +602,52 @@ def _rod_figure(run, title):
     probe = int(np.argmax(np.max(disp, axis=0))) if moving else n // 2
     s_of = lambda j: L * j / max(n - 1, 1)  # noqa: E731
 
+    twist = section_twist(Lam) if Lam is not None and K > 1 else None
+    spinning = twist is not None and np.max(np.abs(twist)) > 1e-6
+    ex, ey, ez = np.eye(3)
     if mode == "deflection":
         f, u = _length_unit(amp)
         X, Y, Z = along + o @ e, f * w[..., 0], f * w[..., 1]
         xl, yl, zl = f"{an} [m]", f"deflection in {bn} [{u}]", f"deflection in {cn} [{u}]"
         head = (f"deflection from the chord through the end nodes, on its own scale "
                 f"(largest {amp * f:.3g} {u} = {amp / L:.2g} L)")
+        bx, by, bz = e, e2, e3
     else:
         X, Y, Z = r[..., 0], r[..., 1], r[..., 2]
         xl, yl, zl = "x [m]", "y [m]", "z [m]"
         head = "true scale"
-        if mode == "rest":
+        bx, by, bz = ex, ey, ez
+        if mode == "rest" and spinning:
+            head += (f"; a steady rotation about its own axis: the centreline stays on its chord (largest deflection "
+                     f"{amp:.2g} m) and only the sections turn (the mark in the end view, the spin below);\n"
+                     "a whirl needs a transverse disturbance (rod.perturbation), modes about this state: varint modes")
+        elif mode == "rest":
             head += f"; the centreline stays on its chord (largest deflection {amp:.2g} m)"
-    views = [(X, Y, xl, yl, "side view")]
+    views = [(X, Y, xl, yl, "side view", bx, by)]
     if not planar:
         if mode == "true":  # large motion: three projections of the whole centreline
-            views += [(X, Z, xl, zl, "side view"), (Y, Z, yl, zl, "end view")]
+            views += [(X, Z, xl, zl, "side view", bx, bz), (Y, Z, yl, zl, "end view", by, bz)]
         else:  # the node that moves most (deflection), or its section turning (rest)
             if mode == "deflection":
-                views.append((X, Z, xl, zl, "side view"))
-            views.append((Y, Z, yl, zl, f"end view, node at s = {s_of(probe):.3g} m"))
+                views.append((X, Z, xl, zl, "side view", bx, bz))
+            views.append((Y, Z, yl, zl, f"end view, node at s = {s_of(probe):.3g} m", by, bz))
+            if mode == "deflection" and spinning:  # the whirl seen from the frame turning with the shaft
+                c, sn = np.cos(twist[:, probe]), np.sin(twist[:, probe])
+                wr = np.stack([c * Y[:, probe] + sn * Z[:, probe], -sn * Y[:, probe] + c * Z[:, probe]], axis=1)
+                Yr, Zr = np.zeros_like(Y), np.zeros_like(Z)
+                Yr[:, probe], Zr[:, probe] = wr[:, 0], wr[:, 1]
+                views.append((Yr, Zr, yl.replace("deflection in", "deflection along the turning"),
+                              zl.replace("deflection in", "deflection along the turning"),
+                              f"end view, node at s = {s_of(probe):.3g} m, in the frame spinning with the shaft", None, None))
 
     timeseries = []
     if moving:
         timeseries.append("displacement")
-    twist = section_twist(Lam) if Lam is not None and K > 1 else None
-    if twist is not None and np.max(np.abs(twist)) > 1e-6:
+    if spinning:
         timeseries.append("twist")
+    gvec = np.asarray(scene.get("environment", {}).get("gravity", (0.0, 0.0, 0.0)), dtype=float)
+    if gvec.shape != (3,):
+        gvec = np.zeros(3)
 
     fig = Figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), layout="constrained")
     top, bottom = fig.subfigures(2, 1, height_ratios=[4.3, 3.2]) if timeseries else (fig, None)
@@ -606,10 +657,12 @@ def _rod_figure(run, title):
     cmap = colormaps["viridis"]
     norm = colors.Normalize(float(t[0]), float(t[-1]) if K > 1 else float(t[0]) + 1.0)
     colour = (lambda k: "k") if single else (lambda k: cmap(norm(t[k])))  # noqa: E731
-    for ax, (P, Q, pl, ql, name) in zip(vax, views):
+    for ax, (P, Q, pl, ql, name, va, vb) in zip(vax, views):
         end_view = name.startswith("end view,")
+        if va is not None:
+            draw_gravity(ax, gvec, va, vb)
         if end_view:
-            if mode != "deflection":  # the section of the probe node, with a mark along its d2 that turns with it
+            if mode != "deflection" and va is not None:  # the probe node's section, with a mark along d2 turning with it
                 c = np.array([P[0, probe], Q[0, probe]])
                 ang = np.linspace(0, 2 * np.pi, 100)
                 ax.plot(c[0] + rho * np.cos(ang), c[1] + rho * np.sin(ang), color="0.6", lw=0.8,
@@ -909,20 +962,22 @@ def centreline_frames(run, triads=True):
     return run["time"], r, axes, X, p
 
 
-def animate_run(path, outdir=None, fps=20, max_frames=400):
-    """Write ``<stem>_anim.gif``: the rod's centreline in 3D over the records (the fluid's labels coloured by
-    the pressure of their parcels for the coupled tube), with matplotlib's Pillow writer.  Returns its path,
-    or None for a run without a rod."""
-    from matplotlib import animation, colormaps, colors
+def animation_figure(run, max_frames=400):
+    """The figure of ``varint plot --animate`` and how to draw it: ``(figure, draw(k), record indices)``, or None for a
+    run without a rod.  The rod's centreline in 3D; for the coupled tube the fluid's labels coloured by the pressure
+    of their parcels, with the colour bar of that scale; the scene's gravity as an arrow labelled g; the run's whole
+    title (wrapped, never cut) and the record's time."""
+    import textwrap
+
+    from matplotlib import cm, colormaps, colors
     from matplotlib.figure import Figure
 
-    run = read_run(path)
     if "rod/r" not in run["fields"]:
         return None
     t, r, axes, X, p = centreline_frames(run)
     K = len(t)
     pick = np.unique(np.linspace(0, K - 1, min(K, max_frames)).round().astype(int))
-    fig = Figure(figsize=(6.4, 5.2))
+    fig = Figure(figsize=(7.4, 6.0))
     ax = fig.add_subplot(projection="3d")
     allpts = r.reshape(-1, 3)
     lo, hi = allpts.min(0), allpts.max(0)
@@ -936,16 +991,25 @@ def animate_run(path, outdir=None, fps=20, max_frames=400):
         ax.view_init(elev=90, azim=-90)
         ax.set_zticks([])
         ax.set_zlabel("")
+    g = np.asarray(_scene(run).get("environment", {}).get("gravity", (0.0, 0.0, 0.0)), dtype=float)
+    if g.shape == (3,) and np.any(g):  # gravity from a corner of the box, a quarter of its size
+        gn = float(np.linalg.norm(g))
+        base = mid + 0.8 * half * np.array([-1.0, 1.0, 1.0]) - 0.25 * half * g / gn
+        ax.quiver(*base, *(0.5 * half * g / gn), color="tab:red", lw=2, arrow_length_ratio=0.25)
+        ax.text(*(base - 0.08 * half * g / gn), f"g ({gn:.3g} m/s\u00b2)", color="tab:red", fontsize=8, gid="gravity")
     (line,) = ax.plot([], [], [], color="0.2", lw=2)
     quiv = []
     scat = None
     norm = None
+    cmap = colormaps["viridis"]
     if X is not None and p is not None:
         finite = p[np.isfinite(p)]
-        norm = colors.Normalize(float(finite.min()), float(finite.max())) if finite.size else None
-    import textwrap
-
-    head = textwrap.shorten(_title(run), width=70, placeholder=" ...")
+        if finite.size:
+            lo_p, hi_p = float(finite.min()), float(finite.max())
+            norm = colors.Normalize(lo_p, hi_p if hi_p > lo_p else lo_p + 1.0)
+            fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, pad=0.1,
+                         label="p [Pa] (each label: the parcel it begins)")
+    head = textwrap.fill(_title(run), width=80)
     title = ax.set_title("", fontsize=8)
 
     def draw(k):
@@ -963,10 +1027,22 @@ def animate_run(path, outdir=None, fps=20, max_frames=400):
             if scat is not None:
                 scat.remove()
             scat = ax.scatter(X[k, :, 0], X[k, :, 1], X[k, :, 2], s=8,
-                              c=colormaps["viridis"](norm(pk)) if norm is not None else "tab:blue", depthshade=False)
+                              c=cmap(norm(pk)) if norm is not None else "tab:blue", depthshade=False)
         title.set_text(f"{head}\nt = {t[k]:.4g} s")
         return [line]
 
+    return fig, draw, pick
+
+
+def animate_run(path, outdir=None, fps=20, max_frames=400):
+    """Write ``<stem>_anim.gif`` (:func:`animation_figure`) with matplotlib's Pillow writer.  Returns its path, or None
+    for a run without a rod."""
+    from matplotlib import animation
+
+    made = animation_figure(read_run(path), max_frames)
+    if made is None:
+        return None
+    fig, draw, pick = made
     anim = animation.FuncAnimation(fig, draw, frames=pick, blit=False)
     stem = Path(path).stem
     outdir = Path(outdir) if outdir else Path(path).resolve().parent
