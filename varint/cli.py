@@ -223,7 +223,8 @@ def cmd_modes(args):
         if frame is not None:
             print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
         for i, m in enumerate(res):
-            print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s")
+            whirl = (f"  {m['whirl']} whirl, {m['lab_frequency']:.8g} rad/s in the lab" if m.get("whirl") else "")
+            print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s{whirl}")
     return 0
 
 
