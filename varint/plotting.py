@@ -21,8 +21,11 @@ import numpy as np
 
 from .run.io import read_run
 
-__all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor",
-           "undisturbed", "diverging_limits", "rod_deflection", "rod_view_mode", "section_twist"]
+__all__ = ["plot_run", "plot_profiles", "animate_run", "monitors_figure", "fields_figure", "profiles_figure",
+           "animation_figure", "monitor_panels", "Panel", "declared_invariants", "energy_scale", "log_floor",
+           "undisturbed", "plateaus", "ColourScale", "colour_scale", "reference_value", "diverging_limits",
+           "exact_profiles", "ExactProfiles", "nearest_records", "gravity_in_view", "draw_gravity", "rod_deflection",
+           "rod_view_mode", "section_twist", "centreline_frames"]
 
 EPS = np.finfo(float).eps
 
@@ -65,8 +68,8 @@ def _term_name(key):
 def energy_scale(mon):
     """(scale [J], what it is) for the energy error (E - E0) / scale.
 
-    |E0| when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
-    and every ``energy_*``: max over time of |term|); otherwise that largest term, so a run starting from
+    ``|E0|`` when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
+    and every ``energy_*``: max over time of ``|term|``); otherwise that largest term, so a run starting from
     zero energy (at rest and unloaded) is measured against the energy it actually moves around.
     ``(1.0, None)`` when everything is zero (the error is then plotted in joules).
     """
@@ -348,7 +351,7 @@ def rod_deflection(r):
     bearings it is the bearing line, for a rod started straight it is that line.  Returns
     ``(along, w, frame)``: the coordinate along the chord (K, N+1), the transverse deflection (K, N+1, 2)
     in the frame's (e2, e3) components, and frame = (origin, e, e2, e3).  A rigid spin about the chord leaves
-    w = 0; a whirl of amplitude a makes |w| ~ a.
+    w = 0; a whirl of amplitude a makes ``|w| ~ a``.
     """
     r = np.asarray(r, dtype=float)
     o = r[0, 0]
@@ -547,7 +550,7 @@ def _tube_figure(t, maps, title, scene=None):
 def gravity_in_view(g, a, b):
     """Gravity seen in a view whose horizontal and vertical axes are the unit vectors a and b: ``(dx, dy, normal)``,
     the in-plane direction (unit, or (0, 0) when gravity is along the line of sight) and the component along a x b
-    over |g| (> 0: out of the view).  None without gravity."""
+    over ``|g|`` (> 0: out of the view).  None without gravity."""
     g = np.asarray(g, dtype=float)
     gn = float(np.linalg.norm(g))
     if gn == 0.0:

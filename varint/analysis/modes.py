@@ -34,7 +34,7 @@ def scene_modes(scene, count=20, about="initial", source=None):
     they apply, ``"flow"`` (a tube conveying fluid, varint/analysis/flowing_modes.py: its U and Païdoussis' u, beta,
     gamma; growth rates there are signed, negative for a decaying mode), ``"note"`` (modes about an unloaded state of a loaded rod), ``"frame"`` (a spinning rod:
     the frequencies are seen from the spinning frame) and ``"remark"`` (a steady rotation that turned
-    the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`VarintError`.
+    the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`~varint.VarintError`.
     """
     if count < 1:
         raise VarintError(f"modes: -n/--count must be >= 1, got {count}")
