@@ -32,8 +32,8 @@ class Simulation:
         A registered scheme's name (default: the scene's ``time.scheme``).
     tol, max_iter : optional
         Newton's tolerance and iteration limit (default: the scene's).
-    state : State, optional
-        Start from this level instead of the model's initial state.
+    state : optional
+        A level (a ``varint.State``) to start from instead of the model's initial state.
     """
 
     def __init__(self, model, h=None, scheme=None, tol=None, max_iter=None, state=None):
