@@ -230,7 +230,7 @@ def test_a_shaft_in_steady_rotation_says_why_its_centreline_stays_straight():
     from varint.plotting import fields_figure
 
     fig = fields_figure(_shaft(0.0, 0.0))
-    text = fig.subfigs[0]._suptitle.get_text()
+    text = " ".join(fig.subfigs[0]._suptitle.get_text().split())  # (wrapped to the figure's width)
     assert "steady rotation about its own axis" in text and "rod.perturbation" in text
 
 

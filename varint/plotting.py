@@ -701,7 +701,10 @@ def _rod_figure(run, title):
     if not single:
         top.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=list(vax), label="t [s]", shrink=0.9)
     what = "centreline" if single else f"centreline at {len(picks)} times"
-    top.suptitle(f"{title}\n{what}: {head}", fontsize=9)
+    import textwrap
+
+    width = int(13 * fig.get_figwidth())  # characters of a 9-point line across the figure: wrapped, never cut
+    top.suptitle("\n".join(textwrap.fill(line, width) for line in f"{title}\n{what}: {head}".split("\n")), fontsize=9)
 
     if timeseries:
         tf, tlabel = _time_axis(t)
