@@ -1,4 +1,4 @@
-"""Command line: ``varint run | check | info | plot | static | modes | sweep | shock``.
+"""Command line: ``varint run | check | info | plot | export | static | modes | sweep | shock``.
 
 Every failure the user can cause (bad scene, unreadable file, an output that would
 replace a file, Newton failure) prints one line per problem prefixed ``varint: error:``
@@ -156,11 +156,32 @@ def cmd_info(args):
     return 0
 
 
+def _times(text):
+    """``--at T1,T2,...``: the times [s], or a one-line error."""
+    try:
+        times = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        times = []
+    if not times or not all(np.isfinite(times)):
+        raise VarintError(f"--at {text!r}: give times in seconds separated by commas, e.g. --at 0,0.1,0.2")
+    return times
+
+
 def cmd_plot(args):
     from .plotting import plot_run
 
+    times = _times(args.at) if args.at is not None else None
     for p in plot_run(args.file, args.outdir):
         print(f"wrote {p}")
+    if times is not None:
+        from .plotting import plot_profiles
+
+        p, drawn = plot_profiles(args.file, times, args.outdir)
+        if p is None:
+            print("varint: note: --at draws a tube's p, rho, u, R; this run has no fluid or wall fields", file=sys.stderr)
+        else:
+            pairs = ", ".join(f"{d:.6g} s" + ("" if d == T else f" (nearest to {T:g})") for T, d in zip(times, drawn))
+            print(f"wrote {p}: profiles at t = {pairs}")
     if args.animate:
         from .plotting import animate_run
 
@@ -169,6 +190,17 @@ def cmd_plot(args):
             print("varint: note: --animate draws a rod's centreline; this run has no rod", file=sys.stderr)
         else:
             print(f"wrote {p}")
+    return 0
+
+
+def cmd_export(args):
+    """``varint export OUT.h5 --xdmf``: an XDMF sidecar for ParaView and VisIt (varint.run.xdmf)."""
+    from .run.xdmf import write_xdmf
+
+    if not args.xdmf:
+        raise VarintError("export: choose a format (--xdmf)")
+    p = write_xdmf(args.file, args.output, force=args.force)
+    print(f"wrote {p}: the rod, fluid and wall fields of {args.file} over time, read in place (open it in ParaView or VisIt)")
     return 0
 
 
@@ -191,7 +223,8 @@ def cmd_modes(args):
         if frame is not None:
             print(f"# {frame['note']}, angular velocity {frame['angular_velocity']} rad/s")
         for i, m in enumerate(res):
-            print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s")
+            whirl = (f"  {m['whirl']} whirl, {m['lab_frequency']:.8g} rad/s in the lab" if m.get("whirl") else "")
+            print(f"{i:4d}  frequency {m['frequency']:.8g} rad/s  ({m['frequency'] / (2 * np.pi):.6g} Hz)  growth rate {m['growth_rate']:.3g} 1/s{whirl}")
     return 0
 
 
@@ -379,7 +412,17 @@ def build_parser():
     pl.add_argument("-d", "--outdir", default=None, help="folder for the PNGs (default: beside the file)")
     pl.add_argument("--animate", action="store_true",
                     help="also write FILE_anim.gif: the rod's centreline in 3D over time (the fluid's labels by pressure)")
+    pl.add_argument("--at", metavar="T1,T2,...",
+                    help="also write FILE_profiles.png: p, rho, u, R along the tube at the records nearest to these times [s], "
+                         "with the exact solution where the scene has one (a Riemann problem, the traveling shock)")
     pl.set_defaults(func=cmd_plot)
+    ex = sub.add_parser("export", help="an XDMF sidecar of a run file (FILE.xmf) for ParaView and VisIt, reading the "
+                                       "HDF5 datasets in place")
+    ex.add_argument("file")
+    ex.add_argument("--xdmf", action="store_true", help="write the XDMF sidecar (the only format)")
+    ex.add_argument("-o", "--output", help="sidecar path (default: FILE with the suffix .xmf)")
+    ex.add_argument("--force", action="store_true", help="replace an existing sidecar")
+    ex.set_defaults(func=cmd_export)
     s = sub.add_parser("static", help="static equilibrium of a [rod] scene (a spinning rod: its steady rotation; a tube "
                                       "conveying fluid: its steady flowing state), written as one frame")
     s.add_argument("scene")

@@ -21,8 +21,11 @@ import numpy as np
 
 from .run.io import read_run
 
-__all__ = ["plot_run", "monitors_figure", "fields_figure", "monitor_panels", "Panel", "energy_scale", "log_floor",
-           "undisturbed", "diverging_limits", "rod_deflection", "rod_view_mode", "section_twist"]
+__all__ = ["plot_run", "plot_profiles", "animate_run", "monitors_figure", "fields_figure", "profiles_figure",
+           "animation_figure", "monitor_panels", "Panel", "declared_invariants", "energy_scale", "log_floor",
+           "undisturbed", "plateaus", "ColourScale", "colour_scale", "reference_value", "diverging_limits",
+           "exact_profiles", "ExactProfiles", "nearest_records", "gravity_in_view", "draw_gravity", "rod_deflection",
+           "rod_view_mode", "section_twist", "centreline_frames"]
 
 EPS = np.finfo(float).eps
 
@@ -65,8 +68,8 @@ def _term_name(key):
 def energy_scale(mon):
     """(scale [J], what it is) for the energy error (E - E0) / scale.
 
-    |E0| when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
-    and every ``energy_*``: max over time of |term|); otherwise that largest term, so a run starting from
+    ``|E0|`` when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
+    and every ``energy_*``: max over time of ``|term|``); otherwise that largest term, so a run starting from
     zero energy (at rest and unloaded) is measured against the energy it actually moves around.
     ``(1.0, None)`` when everything is zero (the error is then plotted in joules).
     """
@@ -87,7 +90,7 @@ def log_floor(scale):
     return EPS * s if s > 0 else None
 
 
-def monitor_panels(mon):
+def monitor_panels(mon, invariants=None, geometry=None):
     """[Panel(label, curves), ...] for a run's monitors (each Panel is also the pair ``(label, curves)``).
 
     Tube runs: energy and mass errors, the fluid's axial momentum, Newton iterations.  Rod runs
@@ -95,6 +98,12 @@ def monitor_panels(mon):
     angular momentum about the centre of mass (reactions of supports included), frame
     orthogonality, Newton iterations.  The energy error is relative to :func:`energy_scale`; the changes
     of momenta and the orthogonality defect go on log axes floored at round-off of their own size.
+
+    ``invariants``: the names the model declares (:func:`declared_invariants`, as ``varint check`` lists them);
+    given, a rod's momentum panels are those of the declared invariants only (a clamped hose keeps neither
+    momentum; a shaft on bearings keeps its angular momentum about the bearing axis, a rod under gravity its
+    momenta across and along it), and a declared ``mass`` gets its panel.  ``geometry``: ``{"gravity": g,
+    "axis": (point, unit vector)}`` for those projections.
 
     A single record (a static file) has no errors or changes, which are zero by definition: its panels
     are the values at that instant (energy and its terms, the momenta, the orthogonality defect).
@@ -130,12 +139,11 @@ def monitor_panels(mon):
             panels.append(Panel(f"energy error (E - E0) / {what}", [("energy", dE / scale)], note=note))
     if "frame_orthogonality" in mon:
         panels.append(Panel("energy terms [J]", _energy_terms(mon)))
-        for key, label, name, sym in (("linear_momentum", "change of linear momentum [kg m/s]", "|P - P0|", "P"),
-                                      ("angular_momentum_cm", "change of angular momentum [kg m2/s]", "|J_cm - J_cm0|", "J_cm")):
-            if key not in mon:
-                continue
-            y = change(mon[key])
-            floor = log_floor(np.concatenate([np.linalg.norm(mon[key], axis=1), y]))
+        if invariants is not None and "mass" in invariants and "mass" in mon:
+            m = mon["mass"]
+            panels.append(Panel("relative mass error (m - m0) / m0", [("mass", (m - m[0]) / (abs(m[0]) or 1.0))]))
+        for label, name, sym, y, size in _momentum_changes(mon, invariants, geometry or {}):
+            floor = log_floor(np.concatenate([size, y]))
             panels.append(Panel(label, [(name, y)], yscale="log" if floor else "linear", floor=floor,
                                 floor_label=f"eps max|{sym}|", skip_first=True))
         panels.append(Panel("frame orthogonality |L^T L - I|", [("max over nodes", mon["frame_orthogonality"])],
@@ -150,6 +158,42 @@ def monitor_panels(mon):
     if "newton_iterations" in mon:  # the first record has no step before it
         panels.append(Panel("Newton iterations", [("per step", mon["newton_iterations"])], skip_first=True))
     return panels
+
+
+def _momentum_changes(mon, invariants, geometry):
+    """[(label, curve name, symbol, change (K,), size (K,)), ...]: the momenta a rod's model keeps (all of them when
+    ``invariants`` is None) as changes from the first record, with the size of the quantity (its round-off level)."""
+    P, J, Jcm = mon.get("linear_momentum"), mon.get("angular_momentum"), mon.get("angular_momentum_cm")
+    out = []
+
+    def vec(label, name, sym, v):
+        out.append((label, name, sym, np.linalg.norm(v - v[0], axis=1), np.linalg.norm(v, axis=1)))
+
+    def comp(label, name, sym, c):
+        out.append((label, name, sym, np.abs(c - c[0]), np.abs(c)))
+
+    g = np.asarray(geometry.get("gravity", (0.0, 0.0, 0.0)), dtype=float)
+    gn = float(np.linalg.norm(g))
+    for inv in (["linear_momentum", "angular_momentum"] if invariants is None else invariants):
+        if inv == "linear_momentum" and P is not None:
+            vec("change of linear momentum [kg m/s]", "|P - P0|", "P", P)
+        elif inv == "angular_momentum" and (Jcm is not None or J is not None):
+            if Jcm is not None:
+                vec("change of angular momentum [kg m2/s]", "|J_cm - J_cm0|", "J_cm", Jcm)
+            else:
+                vec("change of angular momentum [kg m2/s]", "|J - J0|", "J", J)
+        elif inv == "linear_momentum_transverse_to_gravity" and P is not None and gn > 0:
+            e = g / gn
+            vec("change of linear momentum across gravity [kg m/s]", "|P_perp - P_perp0|", "P", P - np.outer(P @ e, e))
+        elif inv == "angular_momentum_along_gravity" and J is not None and gn > 0:
+            comp("change of angular momentum along gravity [kg m2/s]", "|g.(J - J0)|/|g|", "J", J @ (g / gn))
+        elif inv in ("angular_momentum_about_the_bearing_axis", "angular_momentum_along_the_period") \
+                and J is not None and P is not None and "axis" in geometry:
+            a, e = (np.asarray(v, dtype=float) for v in geometry["axis"])
+            what = "the bearing axis" if "bearing" in inv else "the period"
+            comp(f"change of angular momentum about {what} [kg m2/s]", f"|e.(J_a - J_a0)|, e along {what}", "J",
+                 (J - np.cross(a, P)) @ e)
+    return out
 
 
 def _energy_terms(mon):
@@ -196,6 +240,82 @@ def diverging_limits(y):
     return ref, (half if half > 0 else 1.0)
 
 
+def plateaus(y0, tol=1e-6, share=0.1):
+    """The constant states of a profile: values that at least ``share`` of its finite points hold to ``tol`` times
+    its range (sorted).  A localised pulse on a state at rest has one (its tails); a Riemann problem two."""
+    y0 = np.asarray(y0, dtype=float)
+    y0 = np.sort(y0[np.isfinite(y0)])
+    if y0.size < 2:
+        return [float(v) for v in y0]
+    span = float(y0[-1] - y0[0])
+    if span == 0.0:
+        return [float(y0[0])]
+    out, start = [], 0
+    for i in range(1, y0.size + 1):  # runs of sorted values whose neighbours differ by at most tol * span
+        if i == y0.size or y0[i] - y0[i - 1] > tol * span:
+            if i - start >= share * y0.size:
+                out.append(float(np.median(y0[start:i])))
+            start = i
+    return out
+
+
+class ColourScale:
+    """How a space-time map is coloured: ``kind`` "diverging" (``centre``, ``half``: a symmetric scale about the
+    undisturbed state) or "sequential" (``vmin``, ``vmax``: the data's range, when the first record has no single
+    undisturbed state); ``what`` says where the centre or the range comes from."""
+
+    def __init__(self, kind, what, centre=0.0, half=1.0, vmin=0.0, vmax=1.0):
+        self.kind, self.what, self.centre, self.half, self.vmin, self.vmax = kind, what, centre, half, vmin, vmax
+
+    def __repr__(self):
+        return f"ColourScale({self.kind!r}, {self.what!r}, centre={self.centre}, half={self.half}, vmin={self.vmin}, vmax={self.vmax})"
+
+
+def reference_value(scene, key):
+    """The undisturbed value of a tube field from the stored scene (a TOML table): ``(value, its key, always)`` or
+    None.  The wall radius's is the scene's reference radius ``tube.radius`` (``always``: R - R0 is the wall's
+    deflection, whatever the initial data); the fluid's are its initial state ``fluid.pressure`` (a gas),
+    ``fluid.density`` (a gas), ``fluid.velocity``, which [[fluid.initial]] regions and perturbations disturb."""
+    tube, fluid = scene.get("tube", {}), scene.get("fluid")
+    if key == "R":
+        r = tube.get("radius")
+        return (float(r), "tube.radius", True) if isinstance(r, (int, float)) else None
+    if not isinstance(fluid, dict):
+        return None
+    gas = fluid.get("model") in ("ideal-gas", "barotropic")
+    if key == "velocity":
+        return float(fluid.get("velocity", 0.0)), "fluid.velocity", False
+    if key in ("pressure", "density") and gas and isinstance(fluid.get(key), (int, float)):
+        return float(fluid[key]), f"fluid.{key}", False
+    return None
+
+
+def colour_scale(y, reference=None, t0=0.0):
+    """The :class:`ColourScale` of a field y (K, n).
+
+    Diverging, centred on the undisturbed state: ``reference`` (:func:`reference_value`), else the first record's
+    median (:func:`undisturbed`).  Sequential over the data's range when the first record holds two or more constant
+    states (:func:`plateaus`: a Riemann problem, a traveling shock between its far states) and the reference is not
+    one that always applies: a centre between them would saturate both states and hide the waves between."""
+    y = np.asarray(y, dtype=float)
+    finite = np.isfinite(y)
+    if not np.any(finite):
+        return ColourScale("diverging", "no finite value", 0.0, 1.0)
+    states = plateaus(y[0])
+    if len(states) >= 2 and not (reference is not None and reference[2]):
+        lo, hi = float(np.nanmin(y)), float(np.nanmax(y))
+        if hi == lo:
+            hi = lo + 1.0
+        return ColourScale("sequential", f"{len(states)} states at t = {t0:.3g} s ("
+                           + " | ".join(f"{v:.4g}" for v in states) + "): the full range", vmin=lo, vmax=hi)
+    if reference is not None:
+        ref, what = reference[0], reference[1]
+    else:
+        ref, what = undisturbed(y[0]), f"median at t = {t0:.3g} s"
+    half = float(np.nanmax(np.abs(y - ref)))
+    return ColourScale("diverging", what, ref, half if half > 0 else 1.0)
+
+
 def rod_view_mode(amplitude, length):
     """How to draw a centreline whose largest transverse deflection from its chord is ``amplitude``.
 
@@ -231,7 +351,7 @@ def rod_deflection(r):
     bearings it is the bearing line, for a rod started straight it is that line.  Returns
     ``(along, w, frame)``: the coordinate along the chord (K, N+1), the transverse deflection (K, N+1, 2)
     in the frame's (e2, e3) components, and frame = (origin, e, e2, e3).  A rigid spin about the chord leaves
-    w = 0; a whirl of amplitude a makes |w| ~ a.
+    w = 0; a whirl of amplitude a makes ``|w| ~ a``.
     """
     r = np.asarray(r, dtype=float)
     o = r[0, 0]
@@ -352,18 +472,23 @@ def _monitors_figure(t, panels, title):
 
 
 def _tube_maps(fld, scene):
-    """[(name, symbol, unit, x (K, n), values (K, n)), ...] for the tube's fields."""
+    """[(name, symbol, unit, x (K, n), values (K, n), field key), ...] for the tube's fields: p, rho (a compressible
+    fluid: the contact of a Riemann problem shows only there), u, R."""
     maps = []
     L = float(scene.get("tube", {}).get("length", 0.0))
     if "fluid/pressure" in fld:
         s = fld["fluid/s"]
         L = L or float(s[0, -1] - s[0, 0])
-        maps.append(("pressure", "p", "Pa", 0.5 * (s[:, 1:] + s[:, :-1]), fld["fluid/pressure"]))
-        maps.append(("velocity", "u", "m/s", s, fld["fluid/velocity"]))
+        xc = 0.5 * (s[:, 1:] + s[:, :-1])
+        maps.append(("pressure", "p", "Pa", xc, fld["fluid/pressure"], "pressure"))
+        rho = fld.get("fluid/density")
+        if rho is not None and np.any(np.isfinite(rho)) and np.nanmax(rho) > np.nanmin(rho):  # not a liquid's constant
+            maps.append(("density", "\u03c1", "kg/m\u00b3", xc, rho, "density"))
+        maps.append(("velocity", "u", "m/s", s, fld["fluid/velocity"], "velocity"))
     if "wall/R" in fld:
         R = fld["wall/R"]
         x = np.linspace(0.0, L or 1.0, R.shape[1])[None, :] * np.ones((R.shape[0], 1))
-        maps.append(("wall radius", "R", "m", x, R))
+        maps.append(("wall radius", "R", "m", x, R, "R"))
     return maps
 
 
@@ -375,40 +500,83 @@ def _interp_finite(xg, x, y):
     return np.interp(xg, x[ok], y[ok], left=np.nan, right=np.nan)
 
 
-def _tube_figure(t, maps, title):
+def _tube_figure(t, maps, title, scene=None):
     from matplotlib.figure import Figure
 
+    scene = scene or {}
     single = len(t) == 1
     tf, tlabel = _time_axis(t)
     fig = Figure(figsize=(4.4 * len(maps), 4.0 if single else 4.4), layout="constrained")
     axes = fig.subplots(1, len(maps), squeeze=False)
-    for ax, (name, sym, unit, x, y) in zip(axes[0], maps):
-        ref, half = diverging_limits(y)
+    for ax, (name, sym, unit, x, y, key) in zip(axes[0], maps):
+        sc = colour_scale(y, reference_value(scene, key), float(t[0]))
         f = 1.0
-        if unit == "m":  # a wall moving by a fraction of a millimetre: in mm or um
-            f, unit = _length_unit(half)
-        dy = f * (y - ref)
-        lab = f"{sym} [{unit}]" if ref == 0.0 else f"{sym} - {sym}0 [{unit}]"
-        ref_unit = "m" if f != 1.0 else unit
-        what = (f"{name}; undisturbed {sym}0 = 0" if ref == 0.0
-                else f"{name}; {sym}0 = {ref:.6g} {ref_unit} (median at t = {t[0]:.3g} s)")
+        if sc.kind == "diverging" and unit == "m":  # a wall moving by a fraction of a millimetre: in mm or um
+            f, unit = _length_unit(sc.half)
+        if sc.kind == "sequential":
+            dy, ref = y, 0.0
+            lab = f"{sym} [{unit}]"
+            what = f"{name}; {sc.what}"
+        else:
+            ref = sc.centre
+            dy = f * (y - ref)
+            lab = f"{sym} [{unit}]" if ref == 0.0 else f"{sym} - {sym}0 [{unit}]"
+            ref_unit = "m" if f != 1.0 else unit
+            what = (f"{name}; undisturbed {sym}0 = 0" + (f" ({sc.what})" if sc.what else "") if ref == 0.0
+                    else f"{name}; {sym}0 = {ref:.6g} {ref_unit} ({sc.what})")
         if single:  # one record: the profile
             ax.plot(x[0], dy[0], "-", lw=1.2, marker="." if np.count_nonzero(np.isfinite(x[0])) <= 60 else None)
-            ax.axhline(0.0, color="0.5", lw=0.8)
+            if sc.kind == "diverging":
+                ax.axhline(0.0, color="0.5", lw=0.8)
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
         else:
             # open ends: inactive slots are NaN and the labels move through the tube: interpolate the active ones
             xg = np.linspace(np.nanmin(x), np.nanmax(x), max(200, y.shape[1]))
             img = np.array([_interp_finite(xg, xi, yi) for xi, yi in zip(x, dy)])
-            vmax = f * half
-            im = ax.pcolormesh(xg, t * tf, img, shading="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+            if sc.kind == "sequential":
+                im = ax.pcolormesh(xg, t * tf, img, shading="auto", cmap="viridis", vmin=sc.vmin, vmax=sc.vmax)
+            else:
+                vmax = f * sc.half
+                im = ax.pcolormesh(xg, t * tf, img, shading="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax)
             fig.colorbar(im, ax=ax, label=lab)
             ax.set_ylabel(tlabel)
         ax.set_title(what, fontsize=8)
         ax.set_xlabel("s [m]")
-    fig.suptitle(title + (f" (t = {t[0]:.4g} s)" if single else ""), fontsize=10)
+    fig.suptitle(title + (f" (t = {t[0]:.4g} s)" if single else f" ({len(t)} records)"), fontsize=10)
     return fig
+
+
+def gravity_in_view(g, a, b):
+    """Gravity seen in a view whose horizontal and vertical axes are the unit vectors a and b: ``(dx, dy, normal)``,
+    the in-plane direction (unit, or (0, 0) when gravity is along the line of sight) and the component along a x b
+    over ``|g|`` (> 0: out of the view).  None without gravity."""
+    g = np.asarray(g, dtype=float)
+    gn = float(np.linalg.norm(g))
+    if gn == 0.0:
+        return None
+    v = np.array([g @ a, g @ b]) / gn
+    n = float(np.linalg.norm(v))
+    normal = float(g @ np.cross(a, b)) / gn
+    return (float(v[0] / n), float(v[1] / n), normal) if n > 0.2 else (0.0, 0.0, normal)
+
+
+def draw_gravity(ax, g, a, b):
+    """An arrow labelled "g" in the view's corner along gravity's projection (:func:`gravity_in_view`); gravity along
+    the line of sight is written as "g into / out of the view".  Returns the annotation (None without gravity)."""
+    v = gravity_in_view(g, a, b)
+    if v is None:
+        return None
+    gn = float(np.linalg.norm(g))
+    dx, dy, normal = v
+    c = np.array([0.9, 0.84])
+    if dx == 0.0 and dy == 0.0:
+        return ax.text(c[0], c[1], f"g ({gn:.3g} m/s\u00b2) {'out of' if normal > 0 else 'into'} the view",
+                       transform=ax.transAxes, ha="right", va="center", fontsize=8, color="tab:red", gid="gravity")
+    d = 0.07 * np.array([dx, dy])
+    return ax.annotate(f"g\n{gn:.3g} m/s\u00b2", xy=tuple(c + d), xytext=tuple(c - d), xycoords="axes fraction",
+                       textcoords="axes fraction", ha="center", va="center", fontsize=7, color="tab:red", gid="gravity",
+                       arrowprops=dict(arrowstyle="-|>", color="tab:red", lw=1.5))
 
 
 def _rod_figure(run, title):
@@ -437,33 +605,52 @@ def _rod_figure(run, title):
     probe = int(np.argmax(np.max(disp, axis=0))) if moving else n // 2
     s_of = lambda j: L * j / max(n - 1, 1)  # noqa: E731
 
+    twist = section_twist(Lam) if Lam is not None and K > 1 else None
+    spinning = twist is not None and np.max(np.abs(twist)) > 1e-6
+    ex, ey, ez = np.eye(3)
     if mode == "deflection":
         f, u = _length_unit(amp)
         X, Y, Z = along + o @ e, f * w[..., 0], f * w[..., 1]
         xl, yl, zl = f"{an} [m]", f"deflection in {bn} [{u}]", f"deflection in {cn} [{u}]"
         head = (f"deflection from the chord through the end nodes, on its own scale "
                 f"(largest {amp * f:.3g} {u} = {amp / L:.2g} L)")
+        bx, by, bz = e, e2, e3
     else:
         X, Y, Z = r[..., 0], r[..., 1], r[..., 2]
         xl, yl, zl = "x [m]", "y [m]", "z [m]"
         head = "true scale"
-        if mode == "rest":
+        bx, by, bz = ex, ey, ez
+        if mode == "rest" and spinning:
+            head += (f"; a steady rotation about its own axis: the centreline stays on its chord (largest deflection "
+                     f"{amp:.2g} m) and only the sections turn (the mark in the end view, the spin below);\n"
+                     "a whirl needs a transverse disturbance (rod.perturbation), modes about this state: varint modes")
+        elif mode == "rest":
             head += f"; the centreline stays on its chord (largest deflection {amp:.2g} m)"
-    views = [(X, Y, xl, yl, "side view")]
+    views = [(X, Y, xl, yl, "side view", bx, by)]
     if not planar:
         if mode == "true":  # large motion: three projections of the whole centreline
-            views += [(X, Z, xl, zl, "side view"), (Y, Z, yl, zl, "end view")]
+            views += [(X, Z, xl, zl, "side view", bx, bz), (Y, Z, yl, zl, "end view", by, bz)]
         else:  # the node that moves most (deflection), or its section turning (rest)
             if mode == "deflection":
-                views.append((X, Z, xl, zl, "side view"))
-            views.append((Y, Z, yl, zl, f"end view, node at s = {s_of(probe):.3g} m"))
+                views.append((X, Z, xl, zl, "side view", bx, bz))
+            views.append((Y, Z, yl, zl, f"end view, node at s = {s_of(probe):.3g} m", by, bz))
+            if mode == "deflection" and spinning:  # the whirl seen from the frame turning with the shaft
+                c, sn = np.cos(twist[:, probe]), np.sin(twist[:, probe])
+                wr = np.stack([c * Y[:, probe] + sn * Z[:, probe], -sn * Y[:, probe] + c * Z[:, probe]], axis=1)
+                Yr, Zr = np.zeros_like(Y), np.zeros_like(Z)
+                Yr[:, probe], Zr[:, probe] = wr[:, 0], wr[:, 1]
+                views.append((Yr, Zr, yl.replace("deflection in", "deflection along the turning"),
+                              zl.replace("deflection in", "deflection along the turning"),
+                              f"end view, node at s = {s_of(probe):.3g} m, in the frame spinning with the shaft", None, None))
 
     timeseries = []
     if moving:
         timeseries.append("displacement")
-    twist = section_twist(Lam) if Lam is not None and K > 1 else None
-    if twist is not None and np.max(np.abs(twist)) > 1e-6:
+    if spinning:
         timeseries.append("twist")
+    gvec = np.asarray(scene.get("environment", {}).get("gravity", (0.0, 0.0, 0.0)), dtype=float)
+    if gvec.shape != (3,):
+        gvec = np.zeros(3)
 
     fig = Figure(figsize=(max(4.6 * len(views), 9.0) + 0.8, 4.3 + (3.2 if timeseries else 0.0)), layout="constrained")
     top, bottom = fig.subfigures(2, 1, height_ratios=[4.3, 3.2]) if timeseries else (fig, None)
@@ -473,10 +660,12 @@ def _rod_figure(run, title):
     cmap = colormaps["viridis"]
     norm = colors.Normalize(float(t[0]), float(t[-1]) if K > 1 else float(t[0]) + 1.0)
     colour = (lambda k: "k") if single else (lambda k: cmap(norm(t[k])))  # noqa: E731
-    for ax, (P, Q, pl, ql, name) in zip(vax, views):
+    for ax, (P, Q, pl, ql, name, va, vb) in zip(vax, views):
         end_view = name.startswith("end view,")
+        if va is not None:
+            draw_gravity(ax, gvec, va, vb)
         if end_view:
-            if mode != "deflection":  # the section of the probe node, with a mark along its d2 that turns with it
+            if mode != "deflection" and va is not None:  # the probe node's section, with a mark along d2 turning with it
                 c = np.array([P[0, probe], Q[0, probe]])
                 ang = np.linspace(0, 2 * np.pi, 100)
                 ax.plot(c[0] + rho * np.cos(ang), c[1] + rho * np.sin(ang), color="0.6", lw=0.8,
@@ -512,7 +701,10 @@ def _rod_figure(run, title):
     if not single:
         top.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=list(vax), label="t [s]", shrink=0.9)
     what = "centreline" if single else f"centreline at {len(picks)} times"
-    top.suptitle(f"{title}\n{what}: {head}", fontsize=9)
+    import textwrap
+
+    width = int(13 * fig.get_figwidth())  # characters of a 9-point line across the figure: wrapped, never cut
+    top.suptitle("\n".join(textwrap.fill(line, width) for line in f"{title}\n{what}: {head}".split("\n")), fontsize=9)
 
     if timeseries:
         tf, tlabel = _time_axis(t)
@@ -548,11 +740,49 @@ def _title(run):
     return title
 
 
-def monitors_figure(run):
-    """matplotlib Figure of a run's monitors (``run`` as :func:`varint.run.io.read_run` returns it), or None."""
+def declared_invariants(run):
+    """The invariants the run's model declares (``varint check``'s list), derived from the scene stored in the file
+    (its model is built, not stepped); None when the file has no readable scene."""
+    from .errors import VarintError
+    from .model.model import build_model
+    from .scene.schema import parse_scene
+
+    text = run["attrs"].get("scene_toml")
+    if not text:
+        return None
+    try:
+        return list(build_model(parse_scene(text)).invariants())
+    except (VarintError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _geometry(run):
+    """{"gravity": g, "axis": (point, unit vector)}: the scene's gravity and a rod's axis through its first record's
+    end nodes (the bearing line of a shaft on bearings)."""
+    g = _scene(run).get("environment", {}).get("gravity", (0.0, 0.0, 0.0))
+    out = {"gravity": np.asarray(g, dtype=float) if np.size(g) == 3 else np.zeros(3)}
+    r = run["fields"].get("rod/r")
+    if r is not None and len(r):
+        e = r[0, -1] - r[0, 0]
+        n = float(np.linalg.norm(e))
+        if n > 0:
+            out["axis"] = (r[0, 0], e / n)
+    return out
+
+
+def monitors_figure(run, invariants=False):
+    """matplotlib Figure of a run's monitors (``run`` as :func:`varint.run.io.read_run` returns it), or None.
+
+    ``invariants``: the model's declared invariants (a list), None for every momentum, or False (the default) to
+    derive them from the stored scene (:func:`declared_invariants`); the title lists them."""
     if len(run["time"]) == 0 or not run["monitors"]:
         return None
-    return _monitors_figure(run["time"], monitor_panels(run["monitors"]), _title(run))
+    if invariants is False:
+        invariants = declared_invariants(run)
+    title = _title(run)
+    if invariants is not None:
+        title += "\ninvariants the model declares: " + (", ".join(invariants) or "none")
+    return _monitors_figure(run["time"], monitor_panels(run["monitors"], invariants, _geometry(run)), title)
 
 
 def fields_figure(run):
@@ -561,8 +791,149 @@ def fields_figure(run):
         return None
     if "rod/r" in run["fields"]:
         return _rod_figure(run, _title(run))
-    maps = _tube_maps(run["fields"], _scene(run))
-    return _tube_figure(run["time"], maps, _title(run)) if maps else None
+    scene = _scene(run)
+    maps = _tube_maps(run["fields"], scene)
+    return _tube_figure(run["time"], maps, _title(run), scene) if maps else None
+
+
+# -- profiles at chosen times (varint plot --at) -----------------------------------------------------------
+
+def nearest_records(t, times):
+    """Indices of the records nearest to each of ``times`` (in the order asked)."""
+    t = np.asarray(t, dtype=float)
+    return [int(np.argmin(np.abs(t - float(T)))) for T in times]
+
+
+class ExactProfiles:
+    """The exact solution a scene has, on an unbounded tube: ``fields(s, t)`` -> {"pressure", "density", "velocity"
+    (and "R")} along s at time t; ``name`` says which solution it is; ``valid_until`` the time the first wave reaches
+    an end of the finite tube (the exact solution knows no ends)."""
+
+    def __init__(self, name, fields, valid_until=math.inf):
+        self.name, self.fields, self.valid_until = name, fields, valid_until
+
+
+def exact_profiles(scene):
+    """The :class:`ExactProfiles` of a validated scene (:class:`varint.scene.schema.Scene`), or None.
+
+    A Riemann problem: a straight tube (no [rod]) with a rigid uniform wall (no [wall], no area_table), an ideal gas
+    started from two constant states, the scene's fluid state and one ``[[fluid.initial]]`` region (density and
+    pressure, optionally velocity) reaching one end, without perturbations: Toro's exact solution
+    (:class:`varint.exact.shocks.RiemannSolution`).  The paper's traveling shock (``[initial.traveling_shock]``): its
+    profile moved at its speed (:meth:`varint.exact.shocks.TravelingShock.profile`)."""
+    from .exact.shocks import RiemannSolution
+
+    f = scene.fluid
+    if f is None or scene.rod is not None:
+        return None
+    L = float(scene.tube.length)
+    ts = f.get("traveling_shock")
+    if ts is not None:
+        wave, x_s = ts.wave, float(ts.position)
+
+        def fields(s, t):
+            R, rho, u, p = wave.profile(np.asarray(s, dtype=float) - x_s - wave.speed * t)
+            return {"pressure": p, "density": rho, "velocity": u, "R": R}
+
+        return ExactProfiles(f"traveling shock at {wave.speed:.6g} m/s", fields)
+    if (scene.wall is not None or scene.tube.area_table is not None or f.model != "ideal-gas" or f.perturbation
+            or len(f.initial) != 1 or f.ends.s0 != "closed"):
+        return None
+    reg = f.initial[0]
+    if reg.density is None or reg.pressure is None:
+        return None
+    base = (float(f.density), float(f.velocity), float(f.pressure))
+    other = (float(reg.density), float(f.velocity if reg.velocity is None else reg.velocity), float(reg.pressure))
+    a, b = float(reg["from"]), float(reg["to"])
+    if b >= L and 0.0 < a < L:
+        x0, left, right = a, base, other
+    elif a <= 0.0 and 0.0 < b < L:
+        x0, left, right = b, other, base
+    else:
+        return None
+    sol = RiemannSolution(left, right, gamma=f.gamma or 1.4)
+    SL, SR = sol.shock_speeds()
+    slow = SL if SL is not None else left[1] - sol.cl   # the left wave's front (a shock, or a rarefaction's head)
+    fast = SR if SR is not None else right[1] + sol.cr
+    until = min(x0 / -slow if slow < 0 else math.inf, (L - x0) / fast if fast > 0 else math.inf)
+
+    def fields(s, t):
+        s = np.asarray(s, dtype=float)
+        if t <= 0:
+            rho = np.where(s < x0, left[0], right[0])
+            return {"density": rho, "velocity": np.where(s < x0, left[1], right[1]),
+                    "pressure": np.where(s < x0, left[2], right[2])}
+        rho, u, p = sol.sample(s, t, x0=x0)
+        return {"pressure": p, "density": rho, "velocity": u}
+
+    return ExactProfiles(f"Riemann problem, exact (Toro), diaphragm at s = {x0:.4g} m", fields, until)
+
+
+def profiles_figure(run, times):
+    """matplotlib Figure of p, rho, u, R along the tube at the records nearest to ``times`` (each curve says its
+    record's time and the time asked), with the scene's exact solution (:func:`exact_profiles`) dashed; or None
+    for a run without tube fields.  Returns ``(figure, record indices)``."""
+    from matplotlib.figure import Figure
+
+    from .errors import VarintError
+    from .scene.schema import parse_scene
+
+    t = run["time"]
+    fld = run["fields"]
+    raw = _scene(run)
+    maps = [m for m in _tube_maps(fld, raw)]
+    if not maps or not len(t):
+        return None, []
+    exact = None
+    try:
+        exact = exact_profiles(parse_scene(run["attrs"].get("scene_toml", "")))
+    except (VarintError, ValueError, TypeError, AttributeError):
+        exact = None
+    ks = nearest_records(t, times)
+    ncol = 2 if len(maps) > 2 else len(maps)
+    nrow = math.ceil(len(maps) / ncol)
+    fig = Figure(figsize=(6.2 * ncol, 3.6 * nrow + 0.6), layout="constrained")
+    axes = fig.subplots(nrow, ncol, squeeze=False)
+    for ax in axes.flat[len(maps):]:
+        ax.set_visible(False)
+    keys = {"pressure": "pressure", "density": "density", "velocity": "velocity", "R": "R"}
+    for ax, (name, sym, unit, x, y, key) in zip(axes.flat, maps):
+        for i, (T, k) in enumerate(zip(times, ks)):
+            xs, ys = x[k], y[k]
+            ok = np.isfinite(xs) & np.isfinite(ys)
+            ax.plot(xs[ok], ys[ok], "-", color=f"C{i}", lw=1.3, marker="." if np.count_nonzero(ok) <= 60 else None,
+                    label=f"t = {t[k]:.4g} s (asked {float(T):.4g} s)")
+            if exact is not None:
+                sg = np.linspace(np.nanmin(x), np.nanmax(x), 1200)
+                ex = exact.fields(sg, float(t[k])).get(keys[key])
+                if ex is not None:
+                    ax.plot(sg, ex, "--", color="k", lw=0.9, label="exact" if i == 0 else None)
+        ax.set_xlabel("s [m]")
+        ax.set_ylabel(f"{sym} [{unit}]")
+        ax.set_title(name, fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    head = _title(run) + "\nprofiles at the records nearest to the times asked"
+    if exact is not None:
+        head += f"; dashed: {exact.name}"
+        if math.isfinite(exact.valid_until):
+            head += f" (an unbounded tube: valid to t = {exact.valid_until:.4g} s, when a wave reaches an end)"
+    fig.suptitle(head, fontsize=9)
+    return fig, ks
+
+
+def plot_profiles(path, times, outdir=None):
+    """Write ``<stem>_profiles.png`` (:func:`profiles_figure`); returns ``(path or None, record times drawn)``."""
+    run = read_run(path)
+    fig, ks = profiles_figure(run, times)
+    if fig is None:
+        return None, []
+    stem = Path(path).stem
+    outdir = Path(outdir) if outdir else Path(path).resolve().parent
+    outdir.mkdir(parents=True, exist_ok=True)
+    out = outdir / f"{stem}_profiles.png"
+    fig.savefig(out, dpi=110)
+    return out, [float(run["time"][k]) for k in ks]
 
 
 def plot_run(path, outdir=None):
@@ -597,20 +968,22 @@ def centreline_frames(run, triads=True):
     return run["time"], r, axes, X, p
 
 
-def animate_run(path, outdir=None, fps=20, max_frames=400):
-    """Write ``<stem>_anim.gif``: the rod's centreline in 3D over the records (the fluid's labels coloured by
-    the pressure of their parcels for the coupled tube), with matplotlib's Pillow writer.  Returns its path,
-    or None for a run without a rod."""
-    from matplotlib import animation, colormaps, colors
+def animation_figure(run, max_frames=400):
+    """The figure of ``varint plot --animate`` and how to draw it: ``(figure, draw(k), record indices)``, or None for a
+    run without a rod.  The rod's centreline in 3D; for the coupled tube the fluid's labels coloured by the pressure
+    of their parcels, with the colour bar of that scale; the scene's gravity as an arrow labelled g; the run's whole
+    title (wrapped, never cut) and the record's time."""
+    import textwrap
+
+    from matplotlib import cm, colormaps, colors
     from matplotlib.figure import Figure
 
-    run = read_run(path)
     if "rod/r" not in run["fields"]:
         return None
     t, r, axes, X, p = centreline_frames(run)
     K = len(t)
     pick = np.unique(np.linspace(0, K - 1, min(K, max_frames)).round().astype(int))
-    fig = Figure(figsize=(6.4, 5.2))
+    fig = Figure(figsize=(7.4, 6.0))
     ax = fig.add_subplot(projection="3d")
     allpts = r.reshape(-1, 3)
     lo, hi = allpts.min(0), allpts.max(0)
@@ -624,16 +997,25 @@ def animate_run(path, outdir=None, fps=20, max_frames=400):
         ax.view_init(elev=90, azim=-90)
         ax.set_zticks([])
         ax.set_zlabel("")
+    g = np.asarray(_scene(run).get("environment", {}).get("gravity", (0.0, 0.0, 0.0)), dtype=float)
+    if g.shape == (3,) and np.any(g):  # gravity from a corner of the box, a quarter of its size
+        gn = float(np.linalg.norm(g))
+        base = mid + 0.8 * half * np.array([-1.0, 1.0, 1.0]) - 0.25 * half * g / gn
+        ax.quiver(*base, *(0.5 * half * g / gn), color="tab:red", lw=2, arrow_length_ratio=0.25)
+        ax.text(*(base - 0.08 * half * g / gn), f"g ({gn:.3g} m/s\u00b2)", color="tab:red", fontsize=8, gid="gravity")
     (line,) = ax.plot([], [], [], color="0.2", lw=2)
     quiv = []
     scat = None
     norm = None
+    cmap = colormaps["viridis"]
     if X is not None and p is not None:
         finite = p[np.isfinite(p)]
-        norm = colors.Normalize(float(finite.min()), float(finite.max())) if finite.size else None
-    import textwrap
-
-    head = textwrap.shorten(_title(run), width=70, placeholder=" ...")
+        if finite.size:
+            lo_p, hi_p = float(finite.min()), float(finite.max())
+            norm = colors.Normalize(lo_p, hi_p if hi_p > lo_p else lo_p + 1.0)
+            fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, pad=0.1,
+                         label="p [Pa] (each label: the parcel it begins)")
+    head = textwrap.fill(_title(run), width=80)
     title = ax.set_title("", fontsize=8)
 
     def draw(k):
@@ -651,10 +1033,22 @@ def animate_run(path, outdir=None, fps=20, max_frames=400):
             if scat is not None:
                 scat.remove()
             scat = ax.scatter(X[k, :, 0], X[k, :, 1], X[k, :, 2], s=8,
-                              c=colormaps["viridis"](norm(pk)) if norm is not None else "tab:blue", depthshade=False)
+                              c=cmap(norm(pk)) if norm is not None else "tab:blue", depthshade=False)
         title.set_text(f"{head}\nt = {t[k]:.4g} s")
         return [line]
 
+    return fig, draw, pick
+
+
+def animate_run(path, outdir=None, fps=20, max_frames=400):
+    """Write ``<stem>_anim.gif`` (:func:`animation_figure`) with matplotlib's Pillow writer.  Returns its path, or None
+    for a run without a rod."""
+    from matplotlib import animation
+
+    made = animation_figure(read_run(path), max_frames)
+    if made is None:
+        return None
+    fig, draw, pick = made
     anim = animation.FuncAnimation(fig, draw, frames=pick, blit=False)
     stem = Path(path).stem
     outdir = Path(outdir) if outdir else Path(path).resolve().parent

@@ -1,13 +1,13 @@
 """``varint sweep``: one scene over the product of values of some of its keys, on a Dask cluster.
 
-A sweep point is the scene's TOML text with the varied keys set (parsed with :mod:`tomllib`, the
+A sweep point is the scene's TOML text with the varied keys set (parsed with ``tomllib``, the
 values set, written back by :func:`to_toml`).  Every point is validated by
-:func:`varint.scene.schema.parse_scene` before anything runs.  Each point is then one task on a
+:func:`varint.parse_scene` before anything runs.  Each point is then one task on a
 ``dask.distributed`` cluster (a local one, one single-threaded worker process per core, or an
 existing one by its scheduler's address): ``run`` integrates it into ``DIR/point_NNNN.h5``,
 ``modes`` computes its modes as ``varint modes`` does (:func:`varint.analysis.modes.scene_modes`).
 ``DIR/sweep.csv`` gets one row per point as the points finish (docs/output.md); a point that fails
-with a :class:`VarintError` is a row with its one-line error; a re-run skips the points already in
+with a :class:`~varint.VarintError` is a row with its one-line error; a re-run skips the points already in
 the table (by their key values).
 """
 
@@ -48,7 +48,7 @@ class Vary:
     """One ``--vary`` option resolved against the scene schema.
 
     ``key``: as written (the CSV column); ``path``: ``[(name, index or None), ...]``;
-    ``decl``: the :class:`varint.scene.schema.Key` declaration; ``values``: the values, typed by its kind.
+    ``decl``: the ``varint.scene.schema.Key`` declaration; ``values``: the values, typed by its kind.
     """
 
     def __init__(self, key, path, decl, values):
@@ -76,7 +76,7 @@ def parse_vary(spec):
     """``KEY=START:STOP:NUM`` (NUM values from START to STOP, inclusive) or ``KEY=V1,V2,...`` -> :class:`Vary`.
 
     Numbers are floats, or ints when the scene key is an int; a string key takes a comma list.
-    Raises :class:`SweepError` naming the option.
+    Raises ``SweepError`` naming the option.
     """
     if "=" not in spec:
         raise SweepError(f"--vary {spec}: expected KEY=START:STOP:NUM or KEY=V1,V2,...")
@@ -145,7 +145,7 @@ def _fmt(v):
 def point_texts(text, varies, source=None):
     """Every point of the sweep: ``[(values tuple, TOML text), ...]`` in product order, each validated.
 
-    Raises :class:`SweepError` (bad key for this scene) or :class:`SceneError` (an invalid point), naming
+    Raises ``SweepError`` (bad key for this scene) or :class:`~varint.SceneError` (an invalid point), naming
     the point and its key values, before anything runs.
     """
     from .scene.schema import parse_scene
@@ -203,7 +203,7 @@ def _copy(x):
 def compute_point(text, analysis, out=None, count=20, about="initial"):
     """One point (runs on a Dask worker): ``{"status": "ok", results...}`` or ``{"status": "failed", "error": line}``.
 
-    A :class:`VarintError` is the point's failure; any other exception is a bug in varint or a lost
+    A :class:`~varint.VarintError` is the point's failure; any other exception is a bug in varint or a lost
     worker, recorded as status "crashed" (retried by a re-run).
     """
     from .scene.schema import parse_scene
@@ -345,7 +345,7 @@ def sweep(scene_path, vary_specs, analysis, out_dir, scheduler=None, workers=Non
           progress=None):
     """Run a sweep; returns a summary dict (``table``, ``points``, ``computed``, ``skipped``, ``ok``, ``failed``, ``crashed``).
 
-    Raises :class:`VarintError` (one line per problem) before anything runs when a --vary, a point
+    Raises :class:`~varint.VarintError` (one line per problem) before anything runs when a --vary, a point
     or the output directory is wrong.
     """
     from .scene.schema import load_scene

@@ -34,7 +34,7 @@ def scene_modes(scene, count=20, about="initial", source=None):
     they apply, ``"flow"`` (a tube conveying fluid, varint/analysis/flowing_modes.py: its U and Païdoussis' u, beta,
     gamma; growth rates there are signed, negative for a decaying mode), ``"note"`` (modes about an unloaded state of a loaded rod), ``"frame"`` (a spinning rod:
     the frequencies are seen from the spinning frame) and ``"remark"`` (a steady rotation that turned
-    the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`VarintError`.
+    the rod).  ``source`` names the scene in messages (default: its path).  Raises :class:`~varint.VarintError`.
     """
     if count < 1:
         raise VarintError(f"modes: -n/--count must be >= 1, got {count}")
@@ -81,11 +81,11 @@ def scene_modes(scene, count=20, about="initial", source=None):
 
             # a spinning rod: about its steady rotation (the shape balancing the centrifugal loads)
             Lam, r, info = static_equilibrium(model, spin=spin if np.any(spin) else None)
-            res = rod_modes(model, count=count, Lam=Lam, r=r, lam=info.get("element_forces"))
+            res, X = rod_modes(model, count=count, Lam=Lam, r=r, lam=info.get("element_forces"), vectors=True)
             if turned_note(info):
                 d["remark"] = f"the steady rotation found has {turned_note(info)}"
         else:
-            res = rod_modes(model, count=count)
+            res, X = rod_modes(model, count=count, vectors=True)
             loads = _loads(model.rod)
             if loads:
                 d["note"] = (f"{source} has loads ({', '.join(loads)}): these modes are about the initial, unloaded "
@@ -93,12 +93,60 @@ def scene_modes(scene, count=20, about="initial", source=None):
         if np.any(spin):
             d["frame"] = {"angular_velocity": [float(x) for x in spin],
                           "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
+            label_whirl(res, X, model.rod, spin)
     else:
         if about == "static":
             raise VarintError(f"{source}: --about static is available for [rod] scenes only")
         res = modes(model, count=count)
     d["modes"] = res
     return d
+
+
+def label_whirl(res, X, rod, spin):
+    """Mark the modes of a rod spinning at ``spin`` (rad/s, a vector) as forward or backward whirl, in place.
+
+    A mode q = Re(X e^{i w t}) seen from the spinning frame moves each node on an orbit about the spin axis a; the
+    sign of its angular momentum about a, sum_j m_j (u_j v_j' - v_j u_j') = -w sum_j m_j Im(conj(U_j) V_j) (U, V the
+    components across a, with a = e_u x e_v), says which way the orbits turn there, at the rate sigma w.  In the lab
+    the frame turns at |spin| about a, so the orbits turn at sigma w + |spin|: forward whirl (with the spin) when
+    that is positive, backward when negative.  Each mode gets ``"whirl"`` ("forward", "backward", or None for a mode
+    without transverse orbits: axial, torsional, a rigid motion) and ``"lab_frequency"`` = |sigma w + |spin|| (rad/s).
+    """
+    from ..model.statics import lumped_mass
+
+    spin = np.asarray(spin, dtype=float)
+    Om = float(np.linalg.norm(spin))
+    a = spin / Om
+    up = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    eu = np.cross(up, a)
+    eu /= np.linalg.norm(eu)
+    ev = np.cross(a, eu)
+    mask = np.asarray(rod.mask)
+    idx = np.flatnonzero(mask.ravel())
+    m = lumped_mass(rod)[mask]
+    n_nodes = mask.shape[0]
+    for j, mode in enumerate(res):
+        mode["whirl"], mode["lab_frequency"] = None, None
+        w = mode["frequency"]
+        if w <= 0 or mode["growth_rate"] > 0:
+            continue
+        D = np.zeros((n_nodes, 3), dtype=complex)  # the nodes' complex displacements (translations only)
+        W = np.zeros((n_nodes, 3))
+        for k, i in enumerate(idx):
+            node, c = divmod(int(i), mask.shape[1])
+            if c < 3:
+                D[node, c] = X[k, j]
+                W[node, c] = m[k]
+        U, V = D @ eu, D @ ev
+        mw = W.max(axis=1)
+        L = -float(np.sum(mw * np.imag(np.conj(U) * V)))  # / w: the orbit's sense in the spinning frame
+        size = float(np.sum(mw * (np.abs(U) ** 2 + np.abs(V) ** 2)))
+        total = float(np.sum(W * np.abs(D) ** 2))
+        if size <= 1e-6 * total or abs(L) <= 1e-6 * size:
+            continue  # no transverse orbit (axial, torsional) or a planar oscillation (no sense of turning)
+        lab = np.sign(L) * w + Om
+        mode["whirl"] = "forward" if lab > 0 else "backward"
+        mode["lab_frequency"] = float(abs(lab))
 
 
 def strongest(res):

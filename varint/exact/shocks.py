@@ -7,7 +7,7 @@ expandable tubes conveying fluid: equations, solutions and shock waves*.
 * Rankine–Hugoniot: :func:`rh_residuals` (the paper's ``RH_mass``, ``RH_momentum``, ``RH_energy``
   for any tube state), :func:`rh_classical` (``RH_mass_0`` … ``RH_energy_0``), :func:`rh_moving`
   (``RH_moving``, ``RH_moving_perfect``); the jumps across a shock captured in a run file are measured by
-  :mod:`varint.analysis.linear.shock_measure`.
+  ``varint.analysis.shock_measure``.
 * :class:`RiemannSolution`: the exact solution of the Riemann problem of the 1-D Euler equations of
   an ideal gas (E. F. Toro, *Riemann Solvers and Numerical Methods for Fluid Dynamics*, ch. 4), the
   rigid uniform tube.
@@ -156,7 +156,7 @@ class RiemannSolution:
     (eqs. 4.5–4.7) by Newton's method from the two-rarefaction guess, to round-off; ``p_star``,
     ``u_star``, ``rho_star_left``, ``rho_star_right`` and the wave types (``"shock"`` or
     ``"rarefaction"``) are attributes; :meth:`sample` gives rho, u, p at (x, t) (Toro §4.5).
-    Raises :class:`VarintError` when the data generate vacuum (pressure positivity condition, eq. 4.40).
+    Raises :class:`~varint.VarintError` when the data generate vacuum (pressure positivity condition, eq. 4.40).
     """
 
     def __init__(self, left, right, gamma=1.4):
@@ -521,11 +521,11 @@ def _far_residual(tb, c, Rp):
 
 
 def far_state_behind(tb, c):
-    """The far state behind a traveling shock of speed c: (R_+, rho_+, u_+, p_+), or None if there is none.
+    """The far state behind a traveling shock of speed c: ``(R_+, rho_+, u_+, p_+)``, or None if there is none.
 
     Solves mass, energy, the momentum integral and the wall equilibrium (docs/theory.md §11) for the
-    non-trivial R_+ > R_- (R_+ = R_- is the gas at rest).  The residual is scanned on a geometric grid
-    of R_+ - R_- up to the radius where the wall's pressure p_+ would make u_+ reach c.
+    non-trivial ``R_+ > R_-`` (``R_+ = R_-`` is the gas at rest).  The residual is scanned on a geometric grid
+    of ``R_+ - R_-`` up to the radius where the wall's pressure ``p_+`` would make ``u_+`` reach c.
     """
     Rm = tb.R_ahead
     # the largest admissible R_+: u_+ < c
@@ -685,7 +685,7 @@ def make_tube(R0, beta1, beta2, a, p_ext, rho, p, gamma):
 
 
 def traveling_shock(tube, speed):
-    """The traveling shock of speed ``speed`` (m/s) in ``tube`` (:func:`make_tube` or :func:`varint.scene.schema.derived.tube_of_scene`).
+    """The traveling shock of speed ``speed`` (m/s) in ``tube`` (:func:`make_tube` or ``varint.scene.derived.tube_of_scene``).
 
     Returns a :class:`TravelingShock`; raises :class:`ShockError` (one line, naming the admissible range)
     when no such wave exists.
@@ -694,7 +694,7 @@ def traveling_shock(tube, speed):
 
 
 def traveling_shock_of_strength(tube, z):
-    """The traveling shock whose far pressure behind is p_- (1 + z)."""
+    """The traveling shock whose far pressure behind is ``p_- (1 + z)``."""
     lo, hi = speed_range_of(tube)
     if not hi > lo:
         raise ShockError(f"strength {z:g}: {_range_text(tube)}")

@@ -168,9 +168,9 @@ class Model:
         """The fluid's share of the initial momenta of the coupled tube (docs/theory.md §10.5, "Initial momenta").
 
         Labels move with the rod and, relative to it, at ``fluid.velocity`` (and initial regions) along the
-        centreline: sdot_k = u_k / |X'_k|, Xdot_k = sum_i N_i(s_k) v_i + X'_k sdot_k.  Returns the nodal
+        centreline: ``sdot_k = u_k / |X'_k|``, ``Xdot_k = sum_i N_i(s_k) v_i + X'_k sdot_k``.  Returns the nodal
         momenta sum_k mbar_k N_j(s_k) Xdot_k (N+1, 3), the label momenta mbar_k Xdot_k . X'_k (M+1,),
-        sdot (M+1,), Xdot (M+1, 3) and the fluid's kinetic energy 1/2 sum mbar_k |Xdot_k|^2.
+        sdot (M+1,), Xdot (M+1, 3) and the fluid's kinetic energy ``1/2 sum mbar_k |Xdot_k|^2``.
         """
         t, rod = self.tube, self.rod
         cfg = t.config(np.concatenate([t.q_init, t.lam_init]))

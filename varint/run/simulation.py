@@ -20,6 +20,9 @@ log = logging.getLogger(__name__)
 class Simulation:
     """Public step API: ``sim.step()`` advances one time step; ``sim.state`` is the current level.
 
+    ``sim.scheme`` is the registered scheme, ``sim.stepper`` its stepper of this model, ``sim.stats`` the run's
+    statistics (the last step's iterations and evaluations, totals, steps that needed a fallback).
+
     Parameters
     ----------
     model : varint.model.model.Model
@@ -29,11 +32,8 @@ class Simulation:
         A registered scheme's name (default: the scene's ``time.scheme``).
     tol, max_iter : optional
         Newton's tolerance and iteration limit (default: the scene's).
-    state : varint.schemes.state.State, optional
-        Start from this level instead of the model's initial state.
-
-    ``sim.scheme`` is the registered scheme, ``sim.stepper`` its stepper of this model, ``sim.stats`` the run's
-    statistics (the last step's iterations and evaluations, totals, steps that needed a fallback).
+    state : optional
+        A level (a ``varint.State``) to start from instead of the model's initial state.
     """
 
     def __init__(self, model, h=None, scheme=None, tol=None, max_iter=None, state=None):
@@ -45,7 +45,7 @@ class Simulation:
 
     @property
     def state(self):
-        """The current level (:class:`varint.schemes.state.State`)."""
+        """The current level (a ``varint.State``)."""
         return self.stepper.state
 
     @state.setter

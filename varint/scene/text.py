@@ -34,7 +34,7 @@ def _all_keys():
 
 
 def resolve_key(key):
-    """``"fluid.perturbation[0].amplitude"`` -> (path, Key declaration); raises :class:`KeyPathError`.
+    """``"fluid.perturbation[0].amplitude"`` -> (path, Key declaration); raises ``KeyPathError``.
 
     Tables are dotted; an array of tables takes an index (``[0]``); a vector key (kind ``vec3``)
     takes the index of its component.
@@ -77,7 +77,7 @@ def set_key(doc, path, value):
     """Set ``path`` (from :func:`resolve_key`) in the TOML document ``doc`` (a dict, changed in place).
 
     Missing tables are created; an array-of-tables entry must exist; a vector component starts from
-    the key's default when the vector is absent.  Raises :class:`KeyPathError`.
+    the key's default when the vector is absent.  Raises ``KeyPathError``.
     """
     node = doc
     shown = []
@@ -162,7 +162,7 @@ def _table(lines, prefix, d):
 
 
 def to_toml(doc):
-    """A TOML document (as :func:`tomllib.loads` returns it) as text; ``tomllib.loads(to_toml(d)) == d``.
+    """A TOML document (as ``tomllib.loads`` returns it) as text; ``tomllib.loads(to_toml(d)) == d``.
 
     Tables become ``[sections]`` (inline tables too), arrays of tables ``[[sections]]``, at any depth.
     Comments of the original are not kept.
