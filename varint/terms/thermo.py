@@ -22,14 +22,16 @@ class IdealGas:
         self.gamma = float(gamma)
         self.cv = float(gas_constant) / (self.gamma - 1.0)
 
+    # np.power, not **: with Python floats ``1e300 ** 1.4`` raises OverflowError, while numpy gives inf (and a
+    # warning), which the scene validation and the solvers' finiteness tests turn into one line
     def entropy(self, rho, p):
-        return self.cv * np.log(p / rho ** self.gamma)
+        return self.cv * np.log(p / np.power(rho, self.gamma))
 
     def pressure(self, rho, S):
-        return np.exp(S / self.cv) * rho ** self.gamma
+        return np.exp(S / self.cv) * np.power(rho, self.gamma)
 
     def density(self, p, S):
-        return (p * np.exp(-S / self.cv)) ** (1.0 / self.gamma)
+        return np.power(p * np.exp(-S / self.cv), 1.0 / self.gamma)
 
     def sound_speed(self, rho, S):
         return np.sqrt(self.gamma * self.pressure(rho, S) / rho)
