@@ -63,16 +63,17 @@ SHAPE_KEYS = (
     Key("amplitude", "float", REQUIRED, "field unit", "added to the field (pressure: Pa, density: kg/m^3, velocity: m/s, R: m)"),
     Key("wavelength", "float", None, "m", "cosine: amplitude*cos(2*pi*s/wavelength + phase)", low=0.0, low_open=True),
     Key("phase", "float", 0.0, "rad", "cosine: phase"),
-    Key("center", "float", None, "m", "gaussian: amplitude*exp(-(s-center)^2/(2*width^2))"),
+    Key("center", "float", None, "m", "gaussian: amplitude*exp(-(s-center)^2/(2*width^2)); on the tube, 0 <= center <= L"),
     Key("width", "float", None, "m", "gaussian: standard deviation", low=0.0, low_open=True),
     Key("from", "float", None, "m", "step: start of the interval where the amplitude is added"),
-    Key("to", "float", None, "m", "step: end of that interval"),
+    Key("to", "float", None, "m", "step: end of that interval (which must meet the tube [0, L])"),
 )
 
 #: Every accepted key, by section.  Sub-tables are ``section.sub``; arrays of
 #: tables are marked by a trailing ``[]``.
 SCHEMA = MappingProxyType({
-    "": (Key("title", "str", REQUIRED, "", "one-line description of the scene"),),
+    "": (Key("title", "str", REQUIRED, "", "one-line description of the scene (no string of a scene may hold control "
+             "characters or line breaks)"),),
     "tube": (
         _pos("length", "m", "tube length L"),
         # the upper bound keeps the lattice's unknowns and their Jacobian within a few GB (as fluid.parcels')
@@ -100,7 +101,8 @@ SCHEMA = MappingProxyType({
         Key("gamma", "float", None, "", "ideal gas: ratio of specific heats (default 1.4); barotropic: Tait exponent (default 7.15)", low=1.0),
         Key("density", "float", REQUIRED, "kg/m^3", "initial (reference) density", low=0.0, low_open=True),
         Key("pressure", "float", None, "Pa", "initial pressure (required for ideal-gas and barotropic; incompressible: initial guess of the multiplier, default the external pressure)"),
-        Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube"),
+        Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube (0 for a liquid in a closed rigid tube on a "
+            "[rod]: the column cannot flow)"),
         # the upper bound keeps the (M+1)-sized Jacobian and its factorisation within a few GB
         Key("parcels", "int", REQUIRED, "", "number of fluid parcels M (labels k = 0..M); flowing liquid on a [rod]: at "
             "least 2 per element (docs/theory.md §12, labels passing the nodes)", low=2, high=2_000_000),
@@ -176,7 +178,8 @@ SCHEMA = MappingProxyType({
     ),
     "environment": (
         Key("external_pressure", "float", None, "Pa", "uniform pressure outside the wall (default: the fluid's initial pressure, so the reference tube is in equilibrium; 0 without fluid)"),
-        Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube lies along +x"),
+        Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube (no [rod]) lies "
+            "along +x and only g_x acts, on its fluid: other components, or gravity without [fluid], are refused"),
     ),
     "time": (
         _pos("step", "s", "time step h"),
