@@ -1,5 +1,9 @@
 """Helpers the tests share (the standard scenes themselves are varint.scene.standard's)."""
 
+import shutil
+import stat
+import subprocess
+
 import numpy as np
 
 from varint import Simulation, build_model, parse_scene
@@ -199,3 +203,25 @@ def run_to_end(d, check=None):
         if check is not None:
             check(sim, before)
     return sim
+
+
+def read_only_dir(path):
+    """A folder nobody can write into; as root (who ignores permissions), made immutable with chattr when it can be.
+    Returns a function undoing it, or None when no read-only folder can be made here."""
+    path.mkdir()
+    path.chmod(stat.S_IRUSR | stat.S_IXUSR | stat.S_IRGRP | stat.S_IXGRP)
+    probe = path / ".probe"
+    try:
+        probe.write_bytes(b"")
+    except OSError:
+        return lambda: path.chmod(0o755)
+    probe.unlink()
+    if shutil.which("chattr") and subprocess.run(["chattr", "+i", str(path)], capture_output=True).returncode == 0:
+        try:
+            probe.write_bytes(b"")
+        except OSError:
+            return lambda: (subprocess.run(["chattr", "-i", str(path)]), path.chmod(0o755))
+        probe.unlink()
+        subprocess.run(["chattr", "-i", str(path)])
+    path.chmod(0o755)
+    return None

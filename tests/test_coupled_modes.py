@@ -393,7 +393,12 @@ def test_scene_modes_of_a_coupled_scene_notes_an_unbalanced_initial_state():
 
 def test_flowing_fluid_is_refused_in_one_line():
     with pytest.raises(VarintError, match="fluid must not flow"):
-        coupled_modes(model_of(scene_dict(fluid=LIQUID, velocity=1.0)))
+        coupled_modes(model_of(scene_dict(fluid=GAS, velocity=1.0)))
+    # a liquid cannot flow in a closed rigid tube at all: the scene is refused (issue 24)
+    with pytest.raises(VarintError, match="fluid.velocity: 1 m/s: an incompressible liquid in a closed, rigid tube"):
+        model_of(scene_dict(fluid=LIQUID, velocity=1.0))
+    with pytest.raises(VarintError, match="fluid must not flow"):
+        coupled_modes(model_of(scene_dict(fluid=LIQUID, wall="quasistatic", velocity=1.0)))
 
 
 def test_cli_modes_of_the_water_filled_hose(tmp_path):

@@ -1,7 +1,9 @@
 """Effects assemble only their own unknowns and terms (docs/theory.md: each effect adds its own unknowns and terms)."""
 
 import numpy as np
+import pytest
 
+from varint.errors import SceneError
 from varint.scene.standard import gas_scene
 from varint.schemes.midpoint import step_terms
 from helpers import make
@@ -55,13 +57,17 @@ def test_periodic_labels_and_nodes():
 
 def test_terms_only_for_effects_present():
     d = gas_scene(wall=False)
-    d["environment"] = {"external_pressure": 5e4, "gravity": [0.0, 0.0, -9.81]}
+    d["environment"] = {"external_pressure": 5e4}
     _, m = make(d)
-    # a rigid wall takes no work from p_ext, and gravity across a fixed axis does nothing
+    # a rigid wall takes no work from p_ext
     assert [t.name for t in m.tube.terms] == ["internal"]
     d["environment"]["gravity"] = [9.81, 0.0, 0.0]
     _, m = make(d)
     assert [t.name for t in m.tube.terms] == ["internal", "gravity"]
+    # gravity across the fixed axis would do nothing: refused in one line (0.2 dropped it silently)
+    d["environment"]["gravity"] = [0.0, 0.0, -9.81]
+    with pytest.raises(SceneError, match="environment.gravity: a straight tube"):
+        make(d)
 
 
 def test_invariants_follow_term_declarations():

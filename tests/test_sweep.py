@@ -244,7 +244,8 @@ def test_run_sweep_records_a_failing_point_and_a_rerun_skips_finished_points(tmp
     for r in rows:
         if r["status"] == "ok":
             assert r["error"] == "" and float(r["t_end"]) == pytest.approx(1e-4)
-            assert float(r["energy_relative_deviation"]) < 1e-10 and math.isfinite(float(r["energy"]))
+            # relative to the energy that moves (the pulse's), not to |E0| (the gas's internal energy): varint info
+            assert float(r["energy_relative_deviation"]) < 1e-7 and math.isfinite(float(r["energy"]))
             assert (out / r["file"]).exists() and r["file"] == f"point_{int(r['point']):04d}.h5"
         else:
             assert r["error"].startswith("Newton failed at step 1") and "\n" not in r["error"]

@@ -65,6 +65,12 @@ def cmd_run(args):
     scene = _load_scene(args.scene)
     out = args.output or default_output(scene, args.scene)
     check_output(out, args.scene, resume=args.resume, force=args.force)
+    if args.resume:
+        from .run.io import check_resumable
+
+        check_resumable(out, scene)  # a static file, another scene's run, a failed run: one line, before any work
+    if scene.end_note:
+        print(f"varint: note: {scene.end_note}", file=sys.stderr)
     try:
         sim = run_scene(scene, out, resume=args.resume, progress=None if not args.quiet else False)
     except KeyboardInterrupt:
@@ -101,7 +107,8 @@ def cmd_check(args):
     model = build_model(scene)
     scheme = check_supported(model)  # the scene's scheme must step its model: one line with the reason otherwise
     d = {"title": scene.title, **model.describe(),
-         "time": dict(scene.time), "environment": {k: v for k, v in scene.environment.items()}}
+         "time": dict(scene.time, steps=scene.steps, **({"note": scene.end_note} if scene.end_note else {})),
+         "environment": {k: v for k, v in scene.environment.items()}}
     own = scheme.unknowns(model)
     if own is not None:  # a scheme that solves for its own unknowns (energy-momentum: docs/theory.md §12a-§12b)
         d["unknowns"], d["inertial_unknowns"], d["algebraic_unknowns"] = own
@@ -139,7 +146,9 @@ def cmd_check(args):
     if "fluid" in d:
         print("  fluid: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["fluid"].items()))
     t = scene.time
-    print(f"  time: scheme = {t.scheme}, step = {t.step:g} s, end = {t.end:g} s, newton_tol = {t.newton_tol:g}")
+    print(f"  time: scheme = {t.scheme}, step = {t.step:g} s, end = {t.end:g} s ({scene.steps} steps), newton_tol = {t.newton_tol:g}")
+    if scene.end_note:
+        print(f"  note: {scene.end_note}")
     print("  schemes: " + "; ".join(f"{name}: {what}" for name, what in d["schemes"].items()))
     return 0
 
@@ -169,6 +178,10 @@ def _times(text):
 
 def cmd_plot(args):
     from .plotting import plot_run
+    from .run.runner import check_output_dir
+
+    # where the pictures go is checked before anything is read or drawn (default: beside the file)
+    check_output_dir(args.outdir if args.outdir else os.path.dirname(os.path.abspath(args.file)))
 
     times = _times(args.at) if args.at is not None else None
     for p in plot_run(args.file, args.outdir):
@@ -268,13 +281,14 @@ def _write_static(out, scene, sim, load_steps, extra=None):
     """A static file: the run-file layout with one record (the simulation's state) and the static attributes."""
     from .run.io import RunWriter
 
-    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields())
+    w = RunWriter(out, scene, sim.h, sim.monitors(), sim.fields(), records=1)
     try:
         w.append(0.0, sim.monitors(), sim.fields(), sim.state)
         w.f.attrs["static"] = True
         w.f.attrs["load_steps"] = load_steps
         for k, v in (extra or {}).items():
             w.f.attrs[k] = v
+        w.set_status("finished")
     finally:
         w.close()
 
@@ -371,8 +385,10 @@ def cmd_shock(args):
 
 def cmd_sweep(args):
     """``varint sweep SCENE --vary KEY=... --analysis run|modes --out DIR``: docs/output.md, "Sweeps"."""
+    from .run.runner import check_output_dir
     from .sweep import finished_points, sweep
 
+    check_output_dir(args.out)  # before the scene is read or a cluster started
     try:
         r = sweep(args.scene, args.vary, args.analysis, args.out, scheduler=args.scheduler, workers=args.workers,
                   count=args.count, about=args.about)

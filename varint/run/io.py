@@ -2,7 +2,9 @@
 
 Layout::
 
-    /                      attrs: varint_version, scene_toml, scheme, step, title, records
+    /                      attrs: varint_version, scene_toml, scheme, step, title, records, invariants,
+                           status (running | finished | failed | interrupted) [+ status_step, status_time,
+                           status_message, status_resumable]
     /time                  (K,)  dimension scale "time", hard-linked into every group of series
     /parcel, /label, /node, /component, /axis
                            netCDF dimensions without values (empty dimension scales)
@@ -18,7 +20,8 @@ group and its ancestors.
 Each record is appended (datasets resized by one), then the checkpoint is
 overwritten and ``records`` incremented, then the file is flushed.  A run
 killed at any point leaves the last flushed state readable; ``--resume`` trims
-anything past ``records`` and continues from the checkpoint.
+anything past ``records`` and continues from the checkpoint.  Chunks hold at most 64 kB and no
+more records than the run will write, so a short run's file is about the size of its data.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from ..version import __version__
 from ..errors import OutputError
 from ..schemes.state import State
 
-__all__ = ["RunWriter", "read_run", "read_checkpoint", "summary", "UNITS", "DIMS", "units_of"]
+__all__ = ["RunWriter", "read_run", "read_checkpoint", "check_resumable", "summary", "UNITS", "DIMS", "units_of"]
 
 #: Units of every dataset (UDUNITS spelling, "1" for dimensionless), by path in the file.
 UNITS = {
@@ -205,24 +208,38 @@ def _put_vector(g, name, val):
 class RunWriter:
     """Append-only writer of one run file."""
 
-    def __init__(self, path, scene, h, monitors, fields, resume=False):
+    def __init__(self, path, scene, h, monitors, fields, resume=False, records=None, invariants=None):
         self.path = str(path)
         self.f = None
+        self.records = records
+        self.invariants = invariants
         try:
             if resume:
                 self.f = h5py.File(self.path, "r+")
                 self._check_resumable(scene)
                 self._trim()
                 self._upgrade()
+                self.set_status("running")
             else:
                 self.f = h5py.File(self.path, "w")
                 self._create(scene, h, monitors, fields)
         except OSError as exc:
-            self.close()
+            self._abandon(resume)
             raise OutputError(f"{self.path}: cannot {'resume' if resume else 'create'} the run file ({_oserr(exc)})") from None
         except BaseException:
-            self.close()
+            self._abandon(resume)
             raise
+
+    def _abandon(self, resume):
+        """Close after a failed start; a file this writer created (and could not finish creating) is removed, so that
+        no half-made file is left that neither ``info`` can read nor a rerun may replace without --force."""
+        created = not resume and self.f is not None
+        self.close()
+        if created:
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
 
     # -- creation ----------------------------------------------------------------
 
@@ -234,7 +251,10 @@ class RunWriter:
         f.attrs["step"] = float(h)
         f.attrs["title"] = scene.title
         f.attrs["records"] = 0
-        t = f.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(256,))
+        f.attrs["status"] = "running"
+        if self.invariants is not None:  # what the model declares (varint info prints their deviations only)
+            f.attrs["invariants"] = ",".join(self.invariants)
+        t = f.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(self._rows(8),))
         t.attrs["units"] = "s"
         t.make_scale("time")
         t.attrs["long_name"] = "time"
@@ -251,26 +271,58 @@ class RunWriter:
         cp.attrs["records"] = 0
         self.f.flush()
 
+    #: the largest chunk of a series [bytes]: HDF5 allocates a chunk whole as soon as one record lands in it, so a
+    #: chunk must not be much larger than the data (a 10-record file of 1 MB chunks was 1.4 MB for 20 kB of data)
+    CHUNK_BYTES = 64 * 1024
+
+    def _rows(self, nbytes):
+        """Records per chunk of a series whose record has ``nbytes``: as many as fit in CHUNK_BYTES (at most 1024,
+        at least 1), and no more than the run will write (``records``), so a short run's file is the size of its data."""
+        rows = max(1, min(1024, self.CHUNK_BYTES // max(int(nbytes), 1)))
+        if self.records:
+            rows = min(rows, int(self.records))
+        return rows
+
     def _series(self, path, val):
         shape = val.shape
-        nbytes = max(val.nbytes, 8)
-        rows = int(max(1, min(1024, (1 << 20) // nbytes)))
         d = self.f.create_dataset(path, shape=(0,) + shape, maxshape=(None,) + shape,
-                                  dtype="f8" if val.dtype.kind == "f" else "i8", chunks=(rows,) + shape)
+                                  dtype="f8" if val.dtype.kind == "f" else "i8", chunks=(self._rows(8 * max(val.size, 1)),) + shape)
         d.dims[0].attach_scale(self.f["time"])
         return d
 
     # -- resume ------------------------------------------------------------------
 
     def _check_resumable(self, scene):
-        f = self.f
-        if "checkpoint" not in f or "scene_toml" not in f.attrs:
-            raise OutputError(f"{self.path}: not a varint run file (no checkpoint); cannot resume")
-        if f.attrs.get("static", False):
-            raise OutputError(f"{self.path}: holds a static equilibrium written by `varint static`, not a run; "
-                              "it cannot be resumed (run the scene into another file)")
-        if f.attrs["scene_toml"] != scene.text:
-            raise OutputError(f"{self.path}: was started from a different scene; resume with the same scene file")
+        _refuse_resume(self.f, self.path, scene)
+
+    # -- status ------------------------------------------------------------------
+
+    def set_status(self, status, step=None, time=None, message=None, resumable=None):
+        """Say in the root attributes how the run goes (docs/output.md): ``status`` (running, finished, failed,
+        interrupted), with ``status_step``, ``status_time``, ``status_message`` where it ended otherwise than
+        finished; ``status_resumable`` whether ``--resume`` continues a failed run (only a failure to write the file:
+        a step that failed would fail again the same way).  A file that cannot take the attributes any more (a full
+        disk) keeps its last status: ``running``."""
+        if self.f is None:
+            return
+        try:
+            a = self.f.attrs
+            a["status"] = status
+            for k in ("status_step", "status_time", "status_message", "status_resumable"):
+                if k in a:
+                    del a[k]
+            if status != "running":
+                if step is not None:
+                    a["status_step"] = int(step)
+                if time is not None:
+                    a["status_time"] = float(time)
+                if message:
+                    a["status_message"] = str(message)
+                if status == "failed":
+                    a["status_resumable"] = bool(resumable)
+            self.f.flush()
+        except (OSError, ValueError, RuntimeError, KeyError):
+            pass
 
     def _upgrade(self):
         """Files written before the dimension scales get them (and units) when resumed."""
@@ -353,6 +405,31 @@ class RunWriter:
             pass
 
 
+def _refuse_resume(f, path, scene):
+    """Raise OutputError (one line) when the open run file ``f`` cannot be continued with ``scene``."""
+    if "checkpoint" not in f or "scene_toml" not in f.attrs:
+        raise OutputError(f"{path}: not a varint run file (no checkpoint); cannot resume")
+    if f.attrs.get("static", False):
+        raise OutputError(f"{path}: holds a static equilibrium written by `varint static`, not a run; "
+                          "it cannot be resumed (run the scene into another file)")
+    if f.attrs["scene_toml"] != scene.text:
+        raise OutputError(f"{path}: was started from a different scene; resume with the same scene file")
+    if _attr(f.attrs.get("status")) == "failed" and not f.attrs.get("status_resumable", False):
+        raise OutputError(f"{path}: the run failed at step {_attr(f.attrs.get('status_step', '?'))} "
+                          f"(t = {float(f.attrs.get('status_time', float('nan'))):.6g} s) and a resume would repeat the same "
+                          "steps: it cannot be resumed; change the scene (e.g. a smaller time.step) and run it into another file")
+
+
+def check_resumable(path, scene):
+    """Raise OutputError (one line) unless ``path`` is a run of ``scene`` that ``--resume`` can continue: not a static
+    file, not another scene's run, not a run that failed in a step (docs/output.md, "Status").  Read only."""
+    try:
+        with h5py.File(path, "r") as f:
+            _refuse_resume(f, path, scene)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot resume the run file ({_oserr(exc)})") from None
+
+
 def _oserr(exc):
     """The reason of an h5py OSError in words (not HDF5's "Unable to synchronously ..." wording)."""
     msg = str(exc)
@@ -404,45 +481,164 @@ def _attr(v):
     return v.item() if isinstance(v, np.generic) else v
 
 
+def _kind(attrs):
+    """What the file holds, in words (``varint info``)."""
+    if not attrs.get("static", False):
+        return "run"
+    if "flow_velocity" in attrs:
+        what = f"steady flowing state (U = {float(attrs['flow_velocity']):.6g} m/s)"
+    elif "steady_rotation" in attrs:
+        what = "steady rotation (the shape at rest in the spinning frame)"
+    else:
+        what = "static equilibrium"
+    return f"static: one frame written by varint static, the {what}"
+
+
+def _status(attrs, records):
+    """The run's status in words: how it ended, where, and why (docs/output.md, "Status")."""
+    st = attrs.get("status")
+    if st is None:  # written before the status existed
+        return "unknown (written before varint recorded how a run ends)"
+    where = ""
+    if "status_step" in attrs:
+        where = f" at step {int(attrs['status_step'])} (t = {float(attrs.get('status_time', float('nan'))):.6g} s)"
+    if st == "finished":
+        return "finished"
+    if st == "running":
+        return ("running, or stopped without notice (killed, a machine gone down): if no varint is writing it, "
+                f"--resume continues it from its last record ({records} complete)")
+    if st == "interrupted":
+        return f"interrupted{where}: {attrs.get('status_message', '')}; --resume continues it"
+    if st == "failed":
+        tail = ("; --resume continues it once the file can be written" if attrs.get("status_resumable", False)
+                else "; it cannot be resumed (a resume would repeat the failing step)")
+        return f"failed{where}: {attrs.get('status_message', '?')}{tail}"
+    return str(st)
+
+
+def _declared_invariants(attrs):
+    """The invariants the run's model declares: stored in the file (``invariants``), or, for files written before,
+    derived again from the stored scene (None when that fails)."""
+    if "invariants" in attrs:
+        return [x for x in str(attrs["invariants"]).split(",") if x]
+    try:
+        from ..model.model import build_model
+        from ..scene.schema import parse_scene
+
+        with np.errstate(all="ignore"):
+            return list(build_model(parse_scene(attrs["scene_toml"])).invariants())
+    except Exception:  # noqa: BLE001 - an old or foreign file: no momentum deviations rather than a failure
+        return None
+
+
+def _gravity(attrs):
+    try:
+        from ..scene.schema import parse_scene
+
+        return np.asarray(parse_scene(attrs["scene_toml"]).environment.gravity, dtype=float)
+    except Exception:  # noqa: BLE001
+        return np.zeros(3)
+
+
+def _unit(v):
+    n = float(np.linalg.norm(v))
+    return np.asarray(v, dtype=float) / n if n > 0 else None
+
+
 def summary(path):
-    """Short description of a run file for ``varint info``."""
+    """Short description of a run file for ``varint info``: what it holds, how the run ended (its status), and the
+    deviations of the invariants its model declares (docs/output.md)."""
     run = read_run(path)
+    attrs = run["attrs"]
     mon = run["monitors"]
+    K = int(len(run["time"]))
     d = {
         "file": str(path),
-        "title": run["attrs"].get("title"),
-        "varint_version": run["attrs"].get("varint_version"),
-        "scheme": run["attrs"].get("scheme"),
-        "step": run["attrs"].get("step"),
-        "records": int(len(run["time"])),
-        "time": [float(run["time"][0]), float(run["time"][-1])] if len(run["time"]) else [],
+        "kind": _kind(attrs),
+        "status": _status(attrs, K),
+        "title": attrs.get("title"),
+        "varint_version": attrs.get("varint_version"),
+        "scheme": attrs.get("scheme"),
+        "step": attrs.get("step"),
+        "records": K,
+        "time": [float(run["time"][0]), float(run["time"][-1])] if K else [],
         "monitors": sorted(mon),
         "fields": {k: list(v.shape) for k, v in run["fields"].items()},
     }
-    if len(run["time"]) and "energy" in mon:
+    if attrs.get("status") in ("failed", "interrupted"):
+        d["status_step"] = int(attrs.get("status_step", -1))
+        d["status_time"] = float(attrs.get("status_time", float("nan")))
+        d["status_message"] = attrs.get("status_message", "")
+    if attrs.get("static", False) or K == 0:
+        return d
+    inv = _declared_invariants(attrs)
+    if inv is not None:
+        d["invariants"] = inv
+    kept = (lambda name: True) if inv is None else (lambda name: name in inv)
+    if "energy" in mon and (kept("energy") or "external_work" in mon):
         E = mon["energy"]
         if "external_work" in mon:  # a tip torque under the energy-momentum step: E - W is the conserved quantity
             E = E - mon["external_work"]
             d["energy_deviation_of"] = "energy - external_work"
-        # relative to |E(0)|, or to the largest kinetic energy when the run starts at zero energy
-        ref = max(abs(E[0]), float(np.max(mon["kinetic_energy"])) if "kinetic_energy" in mon else 0.0, 1e-300)
+        # relative to the energy that moves: the largest kinetic energy plus the largest change of the potential
+        # energy (the internal energy of a gas at rest, the potential of a body far above the origin are not part
+        # of the motion, and |E(0)| would make any error look small)
+        Kin = mon["kinetic_energy"] if "kinetic_energy" in mon else np.zeros_like(E)
+        V = E - Kin
+        moving = float(np.max(np.abs(Kin)) + np.max(np.abs(V - V[0])))
+        ref = max(moving, 1e-12 * float(np.max(np.abs(E))), 1e-300)
         d["energy_relative_deviation"] = float(np.max(np.abs(E - E[0])) / ref)
-        d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300)) if "mass" in mon else None
-        d["newton_iterations_max"] = int(np.max(mon["newton_iterations"])) if "newton_iterations" in mon else None
-        if "halved_steps" in mon:  # step control (docs/theory.md §4b): steps that failed at h, taken as half steps
-            d["halved_steps"] = int(mon["halved_steps"][-1])
-        if "energy_balance" in mon:  # open ends (docs/theory.md §13.4): the balances against the boundary fluxes
-            for kind, val, flux in (("energy", mon["energy"], mon["energy_flux"]),
-                                    ("momentum", mon["linear_momentum"][:, 0], mon["momentum_flux"][:, 0]),
-                                    ("mass", mon["mass"], mon["mass_flux"])):
-                b = mon[f"{kind}_balance"]
-                b = b[:, 0] if b.ndim > 1 else b
-                ref = max(float(np.max(np.abs(val))), float(np.max(np.abs(flux))), 1e-300)
-                d[f"{kind}_balance_relative"] = float(np.max(np.abs(b)) / ref)
-            d["parcels"] = [int(np.min(mon["parcels"])), int(np.max(mon["parcels"]))]
-        if "angular_momentum_cm" in mon:  # rods: the momenta (reactions of supports included) and the frames
-            for key in ("linear_momentum", "angular_momentum_cm"):
-                v = mon[key]
-                d[f"{key}_deviation"] = float(np.max(np.linalg.norm(v - v[0], axis=1)))
-            d["frame_orthogonality_max"] = float(np.max(mon["frame_orthogonality"]))
+        d["energy_reference"] = ref
+    if "mass" in mon and kept("mass"):
+        d["mass_relative_deviation"] = float(np.max(np.abs(mon["mass"] - mon["mass"][0])) / max(abs(mon["mass"][0]), 1e-300))
+    if "newton_iterations" in mon:
+        d["newton_iterations_max"] = int(np.max(mon["newton_iterations"]))
+    if "halved_steps" in mon:  # step control (docs/theory.md §4b): steps that failed at h, taken as half steps
+        d["halved_steps"] = int(mon["halved_steps"][-1])
+    if "energy_balance" in mon:  # open ends (docs/theory.md §13.4): the balances against the boundary fluxes
+        for kind, val, flux in (("energy", mon["energy"], mon["energy_flux"]),
+                                ("momentum", mon["linear_momentum"][:, 0], mon["momentum_flux"][:, 0]),
+                                ("mass", mon["mass"], mon["mass_flux"])):
+            b = mon[f"{kind}_balance"]
+            b = b[:, 0] if b.ndim > 1 else b
+            ref = max(float(np.max(np.abs(val))), float(np.max(np.abs(flux))), 1e-300)
+            d[f"{kind}_balance_relative"] = float(np.max(np.abs(b)) / ref)
+        d["parcels"] = [int(np.min(mon["parcels"])), int(np.max(mon["parcels"]))]
+    d.update(_momentum_deviations(run, inv))
+    if "frame_orthogonality" in mon:
+        d["frame_orthogonality_max"] = float(np.max(mon["frame_orthogonality"]))
     return d
+
+
+def _momentum_deviations(run, inv):
+    """max_t |J(t) - J(0)| of each momentum (or component of one) the model declares an invariant: a clamped hose's
+    linear momentum is not one (its support takes the impulse), the component across gravity of a free rod's is."""
+    mon, out = run["monitors"], {}
+    if "linear_momentum" not in mon or inv is None or "energy_balance" in mon:
+        return out
+    P, L = mon["linear_momentum"], mon.get("angular_momentum")
+    dev = lambda x: float(np.max(np.abs(x - x[0]) if x.ndim == 1 else np.linalg.norm(x - x[0], axis=1)))  # noqa: E731
+    g = _unit(_gravity(run["attrs"])) if any("gravity" in name for name in inv) else None
+    if "linear_momentum" in inv:
+        out["linear_momentum_deviation"] = dev(P)
+    if "linear_momentum_transverse_to_gravity" in inv and g is not None:
+        out["linear_momentum_transverse_to_gravity_deviation"] = dev(P - np.outer(P @ g, g))
+    if "axial_momentum" in inv:
+        out["axial_momentum_deviation"] = dev(P[:, 0])
+    if L is None:
+        return out
+    if "angular_momentum" in inv:
+        if "angular_momentum_cm" in mon:
+            out["angular_momentum_cm_deviation"] = dev(mon["angular_momentum_cm"])
+        else:
+            out["angular_momentum_deviation"] = dev(L)
+    if "angular_momentum_along_gravity" in inv and g is not None:
+        out["angular_momentum_along_gravity_deviation"] = dev(L @ g)
+    if "angular_momentum_along_the_period" in inv:
+        out["angular_momentum_along_the_period_deviation"] = dev(L[:, 0])
+    if "angular_momentum_about_the_bearing_axis" in inv and "rod/r" in run["fields"]:
+        r0 = run["fields"]["rod/r"][0]
+        a = _unit(r0[-1] - r0[0])
+        if a is not None:  # about the pin at s = 0: L_O - r_0 x P, along the line through both pins
+            out["angular_momentum_about_the_bearing_axis_deviation"] = dev((L - np.cross(r0[0], P)) @ a)
+    return out

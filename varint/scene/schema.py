@@ -12,15 +12,20 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
 from ..errors import SceneError
 
-__all__ = ["Key", "SCHEMA", "Scene", "load_scene", "parse_scene"]
+__all__ = ["Key", "SCHEMA", "Scene", "load_scene", "parse_scene", "step_count", "MAX_STEPS"]
 
 REQUIRED = object()
+
+#: the most steps a run may take (time.end / time.step): a billion steps of the cheapest scene take days
+MAX_STEPS = 10**9
+_MAX_STEPS_TEXT = f"10^{round(math.log10(MAX_STEPS))}"
 
 
 @dataclass(frozen=True)
@@ -58,19 +63,21 @@ SHAPE_KEYS = (
     Key("amplitude", "float", REQUIRED, "field unit", "added to the field (pressure: Pa, density: kg/m^3, velocity: m/s, R: m)"),
     Key("wavelength", "float", None, "m", "cosine: amplitude*cos(2*pi*s/wavelength + phase)", low=0.0, low_open=True),
     Key("phase", "float", 0.0, "rad", "cosine: phase"),
-    Key("center", "float", None, "m", "gaussian: amplitude*exp(-(s-center)^2/(2*width^2))"),
+    Key("center", "float", None, "m", "gaussian: amplitude*exp(-(s-center)^2/(2*width^2)); on the tube, 0 <= center <= L"),
     Key("width", "float", None, "m", "gaussian: standard deviation", low=0.0, low_open=True),
     Key("from", "float", None, "m", "step: start of the interval where the amplitude is added"),
-    Key("to", "float", None, "m", "step: end of that interval"),
+    Key("to", "float", None, "m", "step: end of that interval (which must meet the tube [0, L])"),
 )
 
 #: Every accepted key, by section.  Sub-tables are ``section.sub``; arrays of
 #: tables are marked by a trailing ``[]``.
 SCHEMA = MappingProxyType({
-    "": (Key("title", "str", REQUIRED, "", "one-line description of the scene"),),
+    "": (Key("title", "str", REQUIRED, "", "one-line description of the scene (no string of a scene may hold control "
+             "characters or line breaks)"),),
     "tube": (
         _pos("length", "m", "tube length L"),
-        Key("nodes", "int", REQUIRED, "", "number of lattice nodes N+1 along the tube (N elements)", low=3),
+        # the upper bound keeps the lattice's unknowns and their Jacobian within a few GB (as fluid.parcels')
+        Key("nodes", "int", REQUIRED, "", "number of lattice nodes N+1 along the tube (N elements)", low=3, high=2_000_001),
         _pos("radius", "m", "reference (undeformed) inner radius R0"),
         Key("area_table", "pairs", None, "[m, m^2]", "rigid wall only: cross-section A(s) as [[s, A], ...] points, linearly interpolated; replaces the uniform pi*R0^2"),
     ),
@@ -94,7 +101,8 @@ SCHEMA = MappingProxyType({
         Key("gamma", "float", None, "", "ideal gas: ratio of specific heats (default 1.4); barotropic: Tait exponent (default 7.15)", low=1.0),
         Key("density", "float", REQUIRED, "kg/m^3", "initial (reference) density", low=0.0, low_open=True),
         Key("pressure", "float", None, "Pa", "initial pressure (required for ideal-gas and barotropic; incompressible: initial guess of the multiplier, default the external pressure)"),
-        Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube"),
+        Key("velocity", "float", 0.0, "m/s", "initial velocity along the tube (0 for a liquid in a closed rigid tube on a "
+            "[rod]: the column cannot flow)"),
         # the upper bound keeps the (M+1)-sized Jacobian and its factorisation within a few GB
         Key("parcels", "int", REQUIRED, "", "number of fluid parcels M (labels k = 0..M); flowing liquid on a [rod]: at "
             "least 2 per element (docs/theory.md §12, labels passing the nodes)", low=2, high=2_000_000),
@@ -170,11 +178,14 @@ SCHEMA = MappingProxyType({
     ),
     "environment": (
         Key("external_pressure", "float", None, "Pa", "uniform pressure outside the wall (default: the fluid's initial pressure, so the reference tube is in equilibrium; 0 without fluid)"),
-        Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube lies along +x"),
+        Key("gravity", "vec3", (0.0, 0.0, 0.0), "m/s^2", "gravitational acceleration; the straight tube (no [rod]) lies "
+            "along +x and only g_x acts, on its fluid: other components, or gravity without [fluid], are refused"),
     ),
     "time": (
         _pos("step", "s", "time step h"),
-        _pos("end", "s", "final time"),
+        _pos("end", "s", "final time: the run takes ceil(end/step) steps, so it ends at end when end is a multiple of step "
+             "and otherwise at the first multiple of step after end (varint check and varint run say so in one line); "
+             "at most 10^9 steps"),
         Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': energy and "
             "momenta conserved at any step (a dead tip torque changes them by its work and impulse), for the rod (shearable or "
             "rod.constraint; docs/theory.md §12a) and the "
@@ -280,12 +291,55 @@ class Scene:
         return self.wall is not None or (self.rod is not None and self.fluid is not None)
 
     @property
+    def steps(self):
+        """Number of steps of a run of this scene (:func:`step_count`)."""
+        return step_count(self.time.end, self.time.step)
+
+    @property
+    def end_note(self):
+        """One line saying where a run ends when ``time.end`` is not a multiple of ``time.step``, else None."""
+        n, h, end = self.steps, self.time.step, self.time.end
+        if abs(n * h - end) <= 1e-9 * end:
+            return None
+        return (f"time.end = {end:g} s is not a multiple of time.step = {h:g} s: the run takes {n} steps and ends at "
+                f"t = {n * h:.10g} s")
+
+    @property
     def gravity_acts(self):
         # A fixed centreline lies along +x: only g_x acts, and only on fluid; a rod feels all of g.
         g = self.environment.gravity
         if self.rod is not None:
             return any(x != 0.0 for x in g)
         return self.fluid is not None and g[0] != 0.0
+
+
+def step_count(end, step):
+    """The number of steps of a run to ``end`` at ``step``: ceil(end / step), where an end within 1e-9 (relative) of a
+    multiple of the step counts as that multiple (2e-4 / 1e-5 is 20.000000000000004 in floating point: 20 steps).
+    A run whose end is not a multiple of its step thus ends at the first multiple after it (docs/scenes.md)."""
+    x = end / step
+    if not math.isfinite(x) or x > 2 * MAX_STEPS:
+        raise SceneError(f"time.end: time.end / time.step = {x:.3g} steps, more than the {_MAX_STEPS_TEXT} a run may take")
+    n = round(x)
+    return int(n) if abs(x - n) <= 1e-9 * max(1.0, x) else int(math.ceil(x))
+
+
+class _ResolvedKeys:
+    """The resolved value of a dotted key of a validated scene (``fluid.initial[0].density``), None when absent."""
+
+    def __init__(self, scene):
+        self.scene = scene
+
+    def __call__(self, key):
+        obj = self.scene
+        for part in key.split("."):
+            name, _, index = part.partition("[")
+            obj = obj.get(name) if isinstance(obj, dict) else getattr(obj, name, None)
+            if obj is None:
+                return None
+            if index:
+                obj = obj[int(index.rstrip("]"))]
+        return obj
 
 
 def load_scene(path):
@@ -308,6 +362,14 @@ def parse_scene(text, source=None):
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"TOML syntax error: {exc}", source=source) from None
+    except RecursionError:  # the reader recurses into nested tables and arrays
+        raise SceneError("TOML nesting too deep (tables or arrays nested hundreds of levels; a scene nests three at "
+                         "most)", source=source) from None
+    except ValueError as exc:  # Python's limit on integer literals (sys.get_int_max_str_digits)
+        raise SceneError(f"TOML value not readable: {str(exc).split(':')[0]}", source=source) from None
+    if not raw:
+        raise SceneError("holds no keys: a scene needs a title, [tube], [time] and a [rod], [fluid] or [wall]",
+                         source=source)
     v = _Validator()
     scene = v.scene(raw)
     if v.problems:
@@ -321,8 +383,33 @@ def parse_scene(text, source=None):
 # validation
 
 
-def _fmt(x):
-    return repr(x) if isinstance(x, str) else str(x)
+def _fmt(x, limit=60):
+    """A value as quoted in a message: strings with their escapes (a message stays one printable line), anything
+    longer than ``limit`` characters cut short."""
+    try:
+        text = repr(x) if isinstance(x, str) else str(x)
+    except (RecursionError, ValueError):  # a structure nested too deep to print, an int too long to convert
+        text = f"<{type(x).__name__}>"
+    return text if len(text) <= limit else text[:limit - 4] + " ..."
+
+
+#: Unicode categories no string of a scene may hold: control characters (U+0000-U+001F, U+007F-U+009F: a NUL ends a
+#: C string in HDF5, an escape sequence rewrites the terminal) and line or paragraph separators (they would split
+#: a one-line message)
+_FORBIDDEN_CATEGORIES = ("Cc", "Zl", "Zp")
+
+
+def _control_character(text):
+    """The first character of ``text`` that no scene string may hold, as ``U+XXXX at position i``, or None."""
+    for i, c in enumerate(text):
+        if unicodedata.category(c) in _FORBIDDEN_CATEGORIES:
+            return f"U+{ord(c):04X} at position {i}"
+    return None
+
+
+def _key_text(name):
+    """A key's name as written in a message: quoted with its escapes when it holds what a line cannot show."""
+    return name if name.isprintable() and name.strip() == name and name else repr(name)
 
 
 class _Validator:
@@ -357,7 +444,7 @@ class _Validator:
         return out
 
     def unknown(self, path, name, valid):
-        kp = f"{path}.{name}" if path else name
+        kp = f"{path}.{_key_text(name)}" if path else _key_text(name)
         near = difflib.get_close_matches(name, valid, n=1, cutoff=0.6)
         hint = f" (did you mean '{near[0]}'?)" if near else f" (valid: {', '.join(valid)})"
         self.bad(kp, "unknown key" + hint)
@@ -368,11 +455,19 @@ class _Validator:
                 self.bad(kp, f"must be a number, got {type(x).__name__} {_fmt(x)}")
                 return None
             if k.kind == "int" and not isinstance(x, int):
+                if not math.isfinite(x):
+                    self.bad(kp, f"must be finite, got {x}")
+                    return None
                 if float(x).is_integer():
                     x = int(x)
                 else:
                     self.bad(kp, f"must be a whole number, got {x}")
                     return None
+            try:
+                float(x)
+            except OverflowError:  # an integer of hundreds of digits
+                self.bad(kp, f"is too large ({len(str(abs(x)))} digits)")
+                return None
             if not math.isfinite(x):
                 self.bad(kp, f"must be finite, got {x}")
                 return None
@@ -386,6 +481,10 @@ class _Validator:
         if k.kind == "str":
             if not isinstance(x, str):
                 self.bad(kp, f"must be a string, got {type(x).__name__} {_fmt(x)}")
+                return None
+            bad_char = _control_character(x)
+            if bad_char:
+                self.bad(kp, f"must not contain control characters or line breaks, got {_fmt(x)} ({bad_char})")
                 return None
             if k.choices and x not in k.choices:
                 near = difflib.get_close_matches(x, k.choices, n=1)
@@ -415,6 +514,11 @@ class _Validator:
             if not (isinstance(x, list) and all(isinstance(c, str) for c in x)):
                 self.bad(kp, f"must be a list of strings, got {_fmt(x)}")
                 return None
+            for c in x:
+                bad_char = _control_character(c)
+                if bad_char:
+                    self.bad(kp, f"must not contain control characters or line breaks, got {_fmt(c)} ({bad_char})")
+                    return None
             return list(x)
         raise AssertionError(k.kind)  # pragma: no cover
 
@@ -435,6 +539,12 @@ class _Validator:
                 self.bad(name, NOT_YET[name])
             elif name not in sections and name != "title":
                 self.unknown("", name, ["title"] + sorted(sections))
+        not_tables = [name for name in sorted(sections) if name in raw and not isinstance(raw[name], dict)]
+        for name in not_tables:
+            self.bad(name, f"must be a table ([{name}]), got {type(raw[name]).__name__} {_fmt(raw[name])}")
+        if not_tables:  # the keys of a section that is not a table would only repeat it as missing keys
+            return Scene(title=raw.get("title"), tube=Section.at("tube"), time=Section.at("time"),
+                         output=Section.at("output"), environment=Section.at("environment"))
         top = self.section({k: v for k, v in raw.items() if k == "title"}, "", "")
         for req in ("tube", "time"):
             if req not in raw:
@@ -446,33 +556,25 @@ class _Validator:
         env = self.section(raw.get("environment", {}), "environment", "environment")
         wall = fluid = None
         if "wall" in raw:
-            rw = raw["wall"] if isinstance(raw["wall"], dict) else {}
+            rw = raw["wall"]
             wall = self.section({k: v for k, v in rw.items() if k != "perturbation"}, "wall", "wall")
             wall["perturbation"] = self.array_of_tables(rw.get("perturbation"), "wall.perturbation[]", "wall.perturbation")
-            if isinstance(raw["wall"], dict) is False:
-                self.bad("wall", "must be a table")
         if "fluid" in raw:
-            rf = raw["fluid"] if isinstance(raw["fluid"], dict) else {}
-            if not isinstance(raw["fluid"], dict):
-                self.bad("fluid", "must be a table")
+            rf = raw["fluid"]
             fluid = self.section({k: v for k, v in rf.items() if k not in ("ends", "initial", "perturbation")}, "fluid", "fluid")
             fluid["ends"] = self.section(rf.get("ends", {}), "fluid.ends", "fluid.ends")
             fluid["initial"] = self.array_of_tables(rf.get("initial"), "fluid.initial[]", "fluid.initial")
             fluid["perturbation"] = self.array_of_tables(rf.get("perturbation"), "fluid.perturbation[]", "fluid.perturbation")
         rod = None
         if "rod" in raw:
-            rr = raw["rod"] if isinstance(raw["rod"], dict) else {}
-            if not isinstance(raw["rod"], dict):
-                self.bad("rod", "must be a table")
+            rr = raw["rod"]
             rod = self.section({k: v for k, v in rr.items() if k not in ("ends", "initial", "load", "perturbation")}, "rod", "rod")
             for sub in ("ends", "initial", "load"):
                 rod[sub] = self.section(rr.get(sub, {}), f"rod.{sub}", f"rod.{sub}")
             rod["perturbation"] = self.array_of_tables(rr.get("perturbation"), "rod.perturbation[]", "rod.perturbation")
         initial = None
         if "initial" in raw:
-            ri = raw["initial"] if isinstance(raw["initial"], dict) else {}
-            if not isinstance(raw["initial"], dict):
-                self.bad("initial", "must be a table")
+            ri = raw["initial"]
             for name in ri:
                 if name != "traveling_shock":
                     self.unknown("initial", name, ["traveling_shock"])
@@ -499,6 +601,10 @@ class _Validator:
                 self.bad("tube.area_table", "only for a rigid wall (a scene without [wall])")
         if sc.time.end < sc.time.step:
             self.bad("time.end", f"must be >= time.step ({sc.time.step:g}), got {sc.time.end:g}")
+        elif not sc.time.end / sc.time.step <= MAX_STEPS:
+            self.bad("time.end", f"time.end / time.step = {sc.time.end:g} / {sc.time.step:g} = {sc.time.end / sc.time.step:.3g} "
+                                 f"steps, more than the {_MAX_STEPS_TEXT} a run may take: shorten time.end or lengthen time.step")
+        self.gravity_checks(sc)
         if sc.wall is not None:
             self.wall_checks(sc.wall, R0, L)
         if sc.fluid is not None:
@@ -519,10 +625,86 @@ class _Validator:
                     self.bad("output.fields", f"unknown or absent field group {_fmt(f)}; this scene has: {', '.join(valid)}")
         if sc.output.file is not None and not sc.output.file.strip():
             self.bad("output.file", "must not be empty")
+        if not self.problems:
+            self.derived_checks(sc)
         if sc.initial is not None and sc.initial.traveling_shock is not None and not self.problems:
             self.traveling_shock_checks(sc)
         if sc.shock_capturing is not None:
             self.shock_capturing_checks(sc)
+
+    def gravity_checks(self, sc):
+        """A fixed centreline lies along +x: gravity acts on its fluid through g_x alone (Scene.gravity_acts); the other
+        components, or gravity on a tube without fluid, would be dropped without a word."""
+        g = sc.environment.gravity
+        if sc.rod is not None or not any(g):
+            return
+        if g[1] != 0.0 or g[2] != 0.0:
+            self.bad("environment.gravity", f"a straight tube (no [rod]) lies along x and only g_x acts on its fluid; "
+                     f"the y and z components of {list(g)} would be dropped: give [g_x, 0, 0] or add a [rod]")
+        elif sc.fluid is None:
+            self.bad("environment.gravity", "a straight tube without [fluid] has nothing gravity acts on (its wall moves "
+                     "radially): remove it, or add a [fluid] or a [rod]")
+
+    def derived_checks(self, sc):
+        """Quantities made of several keys must be finite (and masses, sound speeds positive): each key may be a finite
+        number while the gas's entropy ln(p / rho^gamma) of a density of 1e300 is not.  A quantity that is not is
+        blamed on the most extreme of its keys (the largest |log10|x||), named in one line."""
+        import numpy as np
+
+        from .derived import wall_parameters
+
+        val = _ResolvedKeys(sc)
+        L, R0 = val("tube.length"), val("tube.radius")
+        geometry = ["tube.length", "tube.radius"]
+        found = []
+
+        def need(what, x, keys, positive=False):
+            x = np.asarray(x, dtype=np.float64)
+            if not np.all(np.isfinite(x)) or (positive and not np.all(x > 0.0)):
+                found.append((what, keys))
+
+        with np.errstate(all="ignore"):
+            need("volume", np.pi * R0 * R0 * L, geometry, positive=True)
+            f = sc.fluid
+            if f is not None:
+                rho0, u = val("fluid.density"), val("fluid.velocity")
+                need("mass", rho0 * np.pi * R0 * R0 * L, ["fluid.density"] + geometry, positive=True)
+                need("kinetic energy", 0.5 * rho0 * u * u * np.pi * R0 * R0 * L, ["fluid.velocity", "fluid.density"] + geometry)
+                if f.model == "ideal-gas":
+                    gamma, cv = val("fluid.gamma"), val("fluid.gas_constant") / (val("fluid.gamma") - 1.0)
+                    gas = ["fluid.gamma", "fluid.gas_constant"]
+                    states = [("fluid.density", "fluid.pressure")]
+                    states += [(f"fluid.initial[{i}].density" if r.density is not None else None,
+                                f"fluid.initial[{i}].pressure" if r.pressure is not None else None)
+                               for i, r in enumerate(f.initial)]
+                    S0 = cv * np.log(val("fluid.pressure") / np.power(rho0, gamma))
+                    for kr, kp in states:
+                        if kr is None and kp is None:
+                            continue
+                        p = val(kp) if kp else np.exp(S0 / cv) * np.power(val(kr), gamma)
+                        rho = val(kr) if kr else np.power(p * np.exp(-S0 / cv), 1.0 / gamma)
+                        keys = [k for k in (kr, kp) if k] + ([] if kr and kp else ["fluid.density", "fluid.pressure"]) + gas
+                        need("entropy", cv * np.log(p / np.power(rho, gamma)), keys)
+                        need("sound speed", np.sqrt(gamma * p / rho), keys, positive=True)
+                        need("internal energy", p * np.pi * R0 * R0 * L / (gamma - 1.0), keys + geometry)
+                elif f.model == "barotropic":
+                    keys = ["fluid.bulk_modulus", "fluid.density", "fluid.gamma"]
+                    need("sound speed", np.sqrt(val("fluid.bulk_modulus") / rho0), keys, positive=True)
+                    need("internal energy", val("fluid.bulk_modulus") / val("fluid.gamma") * np.pi * R0 * R0 * L,
+                         keys + geometry)
+            if sc.wall is not None:
+                w = wall_parameters(sc.wall, R0)
+                keys = [f"wall.{k}" for k in ("a", "beta1", "beta2", "stiffness", "thickness", "density", "youngs_modulus",
+                                                "poisson_ratio", "shear_coefficient", "tension")] + geometry
+                for name in ("a", "beta1", "beta2", "stiffness"):
+                    need(f"wall coefficient {name}", getattr(w, name), keys)
+                need("wall's elastic energy scale", (w.beta2 + w.stiffness) * R0 * R0 * L, keys)
+        for what, keys in found[:1]:  # one line: the first quantity that fails, on its most extreme key
+            key, x = max(((k, val(k)) for k in keys if val(k) is not None and val(k) != 0.0),
+                         key=lambda kv: abs(math.log10(abs(kv[1]))), default=(keys[0], val(keys[0])))
+            others = [k for k in keys if k != key and val(k) is not None][:2]
+            self.bad(key, f"{_num(x)} makes the {what} derived from it (with {', '.join(f'{k} = {_num(val(k))}' for k in others)}) "
+                          "overflow or vanish: the quantities derived from a scene's numbers must be finite")
 
     def shock_capturing_checks(self, sc):
         """``[shock_capturing]`` is energy-exact where every unknown the parcel volumes read carries inertia
@@ -609,6 +791,18 @@ class _Validator:
             # the sum of the pressure multipliers is indeterminate and Newton's matrix singular (hydraulic lock)
             self.bad("fluid.model", "an incompressible liquid in a rigid, closed tube that is straight and held at both "
                      "ends (or periodic) has an indeterminate pressure: add a [wall] (e.g. model = 'quasistatic')")
+        if (sc.fluid is not None and sc.fluid.model == "incompressible" and sc.wall is None
+                and sc.fluid.ends.s0 == "closed"):
+            # the parcels keep their volumes in a tube of fixed section and the closed ends hold the first and last
+            # labels: the column cannot move along the tube, and the first step would take the velocity (and its
+            # kinetic energy) away
+            why = ("an incompressible liquid in a closed, rigid tube on a [rod] cannot flow along the tube (its parcels "
+                   "keep their volumes and the ends hold the column): give 0, open the ends (fluid.ends) or add a [wall]")
+            if sc.fluid.velocity != 0.0:
+                self.bad("fluid.velocity", f"{_num(sc.fluid.velocity)} m/s: {why}")
+            for i, r in enumerate(sc.fluid.initial):
+                if r.velocity is not None and r.velocity != 0.0:
+                    self.bad(f"fluid.initial[{i}].velocity", f"{_num(r.velocity)} m/s: {why}")
         if sc.wall is not None and sc.fluid is None:
             self.bad("wall", "a [wall] on a [rod] needs a [fluid] in this version (without one the wall would couple to "
                      "the rod only through p_ext on the tube's volume, which is not implemented)")
@@ -654,7 +848,7 @@ class _Validator:
                     self.bad(key, f"a planar rod (dimension = 2) moves in the x-y plane: this vector must not have {what}")
         for i, p in enumerate(rod.perturbation):
             kp = f"rod.perturbation[{i}]"
-            self.shape_checks(p, kp, L=None, allowed=("velocity",))
+            self.shape_checks(p, kp, L=sc.tube.length, allowed=("velocity",))
             d = p.direction
             if not any(d):
                 self.bad(f"{kp}.direction", "must not be zero")
@@ -782,3 +976,8 @@ class _Validator:
                 self.bad(f"{kp}.{n}", f"not used by shape = '{p.shape}'")
         if p.shape == "step" and p["from"] is not None and p["to"] is not None and not p["from"] < p["to"]:
             self.bad(f"{kp}.to", f"must be > from ({p['from']:g}), got {p['to']:g}")
+        elif L is not None and p.shape == "step" and p["from"] is not None and p["to"] is not None:
+            if p["from"] >= L or p["to"] <= 0.0:
+                self.bad(f"{kp}.from", f"the interval [{p['from']:g}, {p['to']:g}] m does not meet the tube [0, {L:g}] m")
+        if L is not None and p.shape == "gaussian" and p.center is not None and not 0.0 <= p.center <= L:
+            self.bad(f"{kp}.center", f"must lie on the tube [0, {L:g}] m (its arc length s), got {p.center:g}")

@@ -12,6 +12,16 @@ import numpy as np
 __all__ = ["IdealGas", "Tait", "make_eos"]
 
 
+def _power(x, y):
+    """x ** y, but inf where Python's float power raises (``1e300 ** 1.4``: OverflowError), as numpy's power gives, so
+    that the scene validation and the solvers' finiteness tests see it.  Python's own power is kept otherwise: numpy's
+    differs from it in the last bit for some arguments (0.125 ** 1.4), and runs repeat bit for bit."""
+    try:
+        return x ** y
+    except (OverflowError, ZeroDivisionError):
+        return np.power(np.float64(x), y)
+
+
 class IdealGas:
     """Perfect gas p = (gamma - 1) rho e, entropy S = c_v ln(p / rho^gamma), c_v = R / (gamma - 1)."""
 
@@ -23,13 +33,13 @@ class IdealGas:
         self.cv = float(gas_constant) / (self.gamma - 1.0)
 
     def entropy(self, rho, p):
-        return self.cv * np.log(p / rho ** self.gamma)
+        return self.cv * np.log(p / _power(rho, self.gamma))
 
     def pressure(self, rho, S):
-        return np.exp(S / self.cv) * rho ** self.gamma
+        return np.exp(S / self.cv) * _power(rho, self.gamma)
 
     def density(self, p, S):
-        return (p * np.exp(-S / self.cv)) ** (1.0 / self.gamma)
+        return _power(p * np.exp(-S / self.cv), 1.0 / self.gamma)
 
     def sound_speed(self, rho, S):
         return np.sqrt(self.gamma * self.pressure(rho, S) / rho)
