@@ -271,8 +271,8 @@ class RunWriter:
         cp.attrs["records"] = 0
         self.f.flush()
 
-    #: the largest chunk of a series, in bytes: HDF5 allocates a chunk whole as soon as one record lands in it, so a
-    #: chunk must not be much larger than the data (a 10-record file of 1 MB chunks was 1.4 MB for 20 kB of data)
+    #: The largest chunk of a series in bytes.  HDF5 allocates a chunk whole as soon as one record lands in it, so a
+    #: chunk must not be much larger than the data (a 10-record file of 1 MB chunks was 1.4 MB for 20 kB of data).
     CHUNK_BYTES = 64 * 1024
 
     def _rows(self, nbytes):

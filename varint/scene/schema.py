@@ -292,7 +292,7 @@ class Scene:
 
     @property
     def steps(self):
-        """Number of steps of a run of this scene (:func:`varint.scene.schema.step_count`)."""
+        """Number of steps of a run of this scene (``step_count``)."""
         return step_count(self.time.end, self.time.step)
 
     @property
