@@ -144,7 +144,23 @@ def test_no_import_cycle():
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
-@pytest.mark.parametrize("broken", ["upward", "private", "cycle"])
+#: what the package outside varint.schemes may import of it: the registry (which scheme steps a model), the protocol and
+#: the state they exchange; an engine chosen anywhere else would be a second way to step a model
+SCHEME_FRONT = {"varint.schemes.registry", "varint.schemes.base", "varint.schemes.state"}
+
+
+def test_no_engine_is_chosen_outside_the_registry():
+    bad = []
+    for name in MODULES:
+        if _top(name) == "schemes":
+            continue
+        for mod, _, line in _imports(name):
+            if _top(mod) == "schemes" and mod not in SCHEME_FRONT:
+                bad.append(f"{name}:{line} imports {mod}")
+    assert not bad, "engines imported outside varint.schemes (use varint.schemes.registry):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("broken", ["upward", "private", "cycle", "engine"])
 def test_the_rules_catch_what_they_are_for(broken, monkeypatch, tmp_path):
     """Each rule fails on a module written to break it (the rules are not vacuous)."""
     import varint  # noqa: F401
@@ -152,9 +168,11 @@ def test_the_rules_catch_what_they_are_for(broken, monkeypatch, tmp_path):
     fake = tmp_path / "fake.py"
     src = {"upward": "from ..run.simulation import Simulation\n",
            "private": "from ..terms.rod import _T\n",
-           "cycle": "from ..lattice import lie\n"}[broken]
+           "cycle": "from ..lattice import lie\n",
+           "engine": "from ..schemes.em_rod import RodEMStep\n"}[broken]
     fake.write_text(src)
-    name = {"upward": "varint.lattice.fake", "private": "varint.schemes.fake", "cycle": "varint.lattice.fake"}[broken]
+    name = {"upward": "varint.lattice.fake", "private": "varint.schemes.fake", "cycle": "varint.lattice.fake",
+            "engine": "varint.run.fake"}[broken]
     monkeypatch.setitem(MODULES, name, fake)
     if broken == "cycle":
         # lie imports the fake module back: lie -> fake -> lie
@@ -164,6 +182,9 @@ def test_the_rules_catch_what_they_are_for(broken, monkeypatch, tmp_path):
         monkeypatch.setitem(MODULES, "varint.lattice.lie", lie)
         with pytest.raises(AssertionError, match="cycles"):
             test_no_import_cycle()
+    elif broken == "engine":
+        with pytest.raises(AssertionError, match="engines imported outside"):
+            test_no_engine_is_chosen_outside_the_registry()
     elif broken == "upward":
         with pytest.raises(AssertionError, match="upward"):
             test_dependencies_point_down_the_layers()
