@@ -163,10 +163,14 @@ class OpenEndsStepping:
                     t.piston = s_new
                     t.piston_velocity = t.U_in  # the new piston, in the inlet's section
                 else:  # pressure inlet: half the new parcel joins the first label, half is the new first label
+                    # the new label carries the first label's volume flux (in a varying duct a faster or slower speed: a
+                    # liquid's volumes hold, and the level's constraint work stays O(h^3), docs/theory.md §13.8)
                     v0 = p[0] / (0.5 * t.m[0])
+                    v_new = v0 * float(duct.A(labels[0])) / float(duct.A(s_new))
                     p[0] = 0.5 * (t.m_in + t.m[0]) * v0
-                    q, p, v = np.r_[s_new, q], np.r_[0.5 * t.m_in * v0, p], np.r_[v[0], v]
-                    dP, dE = t.m_in * v0, 0.5 * t.m_in * v0 ** 2 + psi
+                    q, p, v = np.r_[s_new, q], np.r_[0.5 * t.m_in * v_new, p], np.r_[v[0] * v_new / v0 if v0 else v[0], v]
+                    dP = 0.5 * t.m_in * (v0 + v_new)
+                    dE = 0.25 * t.m_in * (v0 ** 2 + v_new ** 2) + psi
                 if t.incompressible:
                     # the new parcel's pressure (the predictor, and the field until its first step): extrapolated
                     lam = np.r_[2.0 * lam[0] - lam[1] if len(lam) > 1 else lam[0], lam]
@@ -203,12 +207,13 @@ class OpenEndsStepping:
                 s_new = duct.above(labels[-1], V_new)
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([m_new]), np.array([S_new]))[0])
                 vl = p[-1] / (0.5 * t.m[-1])
+                v_new = vl * float(duct.A(labels[-1])) / float(duct.A(s_new))  # the same volume flux (as at the inlet)
                 p[-1] = 0.5 * (t.m[-1] + m_new) * vl
-                q, p, v = np.r_[q, s_new], np.r_[p, 0.5 * m_new * vl], np.r_[v, v[-1]]
+                q, p, v = np.r_[q, s_new], np.r_[p, 0.5 * m_new * v_new], np.r_[v, v[-1] * v_new / vl if vl else v[-1]]
                 if t.incompressible:
                     lam = np.r_[lam, 2.0 * lam[-1] - lam[-2] if len(lam) > 1 else lam[-1]]
                 t.m, t.S = np.r_[t.m, m_new], np.r_[t.S, S_new]
-                t.balance[3:] += [0.5 * m_new * vl ** 2 + psi, m_new * vl, m_new]
+                t.balance[3:] += [0.25 * m_new * (vl ** 2 + v_new ** 2) + psi, 0.5 * m_new * (vl + v_new), m_new]
                 changed = True
                 continue
             last_out = labels[-2] >= t.L if t.filled else 0.5 * (labels[-2] + labels[-1]) >= t.L
