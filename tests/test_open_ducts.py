@@ -153,7 +153,8 @@ def test_the_liquid_does_not_see_the_pressure_datum():
 
 def test_liquid_column_energy_and_its_flux_against_bernoulli():
     """The energy monitor is the kinetic energy of the water the lattice holds at the flow rate,
-    1/2 rho Q^2 int_{s_0}^{s_M} ds/A (outside truth: the column moves with one volume flux); the booked energy flux is
+    1/2 rho Q^2 int_{s_0}^{s_M} ds/A, and its momentum rho Q (s_M - s_0) (outside truth: the column moves with one volume
+    flux; with the balances closed, the booked momentum flux is then the truth's too); the booked energy flux is
     the power of the ends, int Q (dp - k Q^2) dt = 1/2 I Q(t)^2, up to the lattice's content (+-half a parcel at each
     end); the balances close at every step (energy: the scheme's O(h^3) per step; momentum and mass: round-off)."""
     sim, out, (A0, A1, dp) = run_pressure_driven(1.0e5)
@@ -166,6 +167,8 @@ def test_liquid_column_energy_and_its_flux_against_bernoulli():
         s = o["s"]
         held = RHO * quad(lambda x: 1.0 / A(x), s[0], s[-1], limit=200)[0]
         assert abs(o["E"] - 0.5 * held * o["Q"] ** 2) < 2e-3 * E_full, (o["t"], o["E"], 0.5 * held * o["Q"] ** 2)
+        # the column's momentum: rho u A = rho Q per unit length, so P = rho Q (s_M - s_0)
+        assert abs(o["P"] - RHO * o["Q"] * (s[-1] - s[0])) < 2e-3 * RHO * q_inf
         assert abs(o["flux"] - 0.5 * inertia * Q_exact(o["t"] + 0.5 * sim.stepper.h) ** 2) < 0.03 * E_full
     eb = np.array([o["eb"] for o in out])
     assert np.max(np.abs(np.diff(eb))) < 1e-7 * E_full  # per step (measured 1e-10 of E_full)
