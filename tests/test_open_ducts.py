@@ -311,7 +311,9 @@ def test_windkessel_outlet_against_its_ode():
 def test_balances_close_at_every_step_in_a_rubber_tube(fluid, outflow):
     """A dynamic wall (linear law), pressure inlet 200 Pa above the outlet's reference: energy, momentum and mass
     balances close at every step with the outlets' work booked through the end (energy: the midpoint rule's error of a
-    gas's transients, O(h^3) per step for a liquid; measured below 1e-7 of the energy that crossed per step)."""
+    gas's transients, O(h^3) per step for a liquid; measured below 3.2e-9 of the energy that crossed per step).  The
+    liquid's monitor is the step energy: read from the level momenta the wall's midpoint half-impulse of p_ext showed
+    as 2.3 J of kinetic energy at rest (a capability cell caught it: tests/test_capabilities.py)."""
     gas = fluid == "gas"
     wk = ", windkessel_R1 = 1e5, windkessel_C = 1e-7, windkessel_R2 = 1e6" if outflow == "windkessel" else ""
     p_in = 1.0e5 + 200.0 if gas else 200.0
@@ -349,7 +351,7 @@ end = 1.0
     rec = np.array(rec)
     crossed = np.max(np.abs(np.diff(rec[:, 1])))  # the largest energy that crossed the ends in one step
     assert crossed > 0.0
-    assert np.max(np.abs(np.diff(rec[:, 0]))) < 1e-3 * crossed, np.max(np.abs(np.diff(rec[:, 0]))) / crossed
+    assert np.max(np.abs(np.diff(rec[:, 0]))) < 1e-6 * crossed, np.max(np.abs(np.diff(rec[:, 0]))) / crossed
     assert np.max(np.abs(rec[:, 2])) < 1e-11 * np.max(np.abs(rec[:, 3]))
     assert np.max(np.abs(rec[:, 4])) < 1e-15
     assert np.ptp(sim.fields()["wall/R"]) > 1e-7  # the wall moves

@@ -198,7 +198,6 @@ def cmd_modes(args):
 def cmd_static(args):
     import numpy as np
 
-    from .errors import VarintError as _VE
     from .model.model import build_model
     from .model.statics import static_equilibrium
     from .run.runner import check_output, default_output

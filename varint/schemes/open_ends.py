@@ -15,6 +15,7 @@ from ..errors import SolverError
 from ..lattice.lie import cay_inv
 from ..terms.rod import CHI, unpack_level
 from ..terms.rod_constraint import constraint_jacobian, element_strain_residual
+from ..terms.tube_potential import Config as T_Config
 from .midpoint import make_scheme
 
 __all__ = ["OpenEndsStepping"]
@@ -50,8 +51,20 @@ class OpenEndsStepping:
         t = m.tube
         q, p, lam = st.q[m.tube_q], st.p[m.tube_p], st.lam[m.tube_lam]
         cfg = self._open_config(q, lam)
-        K = 0.5 * float(np.sum(p * p / t.mass))
-        pot = t.energies(cfg)
+        if t.level_constraint:
+            # a liquid held at the levels: the energy of the step that ended at the level (its velocities, the wall's
+            # potential at its midpoint; record 0: the initial data's).  The level momentum p_n = D2 L_d' of this form
+            # holds the wall's midpoint half-impulse -(h/2) grad U_wall, which the liquid's level impulse balances only
+            # at the next level: read as a velocity it would be a kinetic energy that is not there (p_ext alone: 2 J
+            # on a rubber tube at rest, docs/theory.md §13.8)
+            v = st.v[m.tube_p]
+            K = 0.5 * float(np.sum(t.mass * v * v))
+            mid = self._open_config(q - 0.5 * self.h * v, lam)
+            cfg_pot = T_Config(cfg.s, mid.R, cfg.mu)
+            pot = t.energies(cfg_pot)
+        else:
+            K = 0.5 * float(np.sum(p * p / t.mass))
+            pot = t.energies(cfg)
         P = float(np.sum(p[t.layout["s"]]))  # the labels' (a wall's radial momenta are not axial)
         return K + sum(pot.values()), K, pot, P, t.fluid_mass(cfg), cfg
 
@@ -257,7 +270,8 @@ class OpenEndsStepping:
         E0, P0, mass0, fE, fP, fm = t.balance
         p = st.p[m.tube_p]
         ns = t.layout["s"].stop
-        Kw = 0.5 * float(np.sum(p[ns:] ** 2 / t.mass[ns:]))
+        Kw = (0.5 * float(np.sum(t.mass[ns:] * st.v[m.tube_p][ns:] ** 2)) if t.level_constraint
+              else 0.5 * float(np.sum(p[ns:] ** 2 / t.mass[ns:])))
         out = {"kinetic_energy": K, "energy_fluid_kinetic": K - Kw, "energy_wall_kinetic": Kw}
         for k, val in pot.items():
             out[f"energy_{k}"] = val

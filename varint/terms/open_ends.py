@@ -11,8 +11,11 @@ those of varint.terms.tube_potential (internal energy, incompressibility) on thi
 positions ``cfg.s``, multipliers ``cfg.mu``), with values, gradients and tridiagonal Hessians in
 configuration index space.  Rigid wall only (uniform radius or ``tube.area_table``): the radii are data.
 
-The end forces enter by Lagrange-d'Alembert (varint.terms.forces): the outlet pressure on the last label,
-f^- = f^+ = -(h/2) p_out A_out, and at a pressure inlet p_in on the first label, f^± = +(h/2) p_in A_in.
+The end forces enter by Lagrange-d'Alembert (varint.terms.forces, :class:`EndPressures`): the outlet's pressure on the
+last label and at a pressure inlet p_in on the first, each on the section where that label is (docs/theory.md §13.8;
+the outlets of §13.9).  A liquid on the straight tube is held at the levels (:class:`OpenLevelConstraint`).  A dynamic
+wall's parcels use the lattice kernels on an extended lattice (:class:`ExtendedLattice`); the coupled tube's centreline
+is extended by :class:`CoupledExtension`.
 """
 
 from __future__ import annotations
@@ -247,11 +250,11 @@ class EndPressures(Force):
         self.last = []
 
     # -- the boundary pressure of the outlet -------------------------------------------------------------
-    def _outlet(self, Q_or_v, A, h, midpoint):
-        """(p_b, dp_b/dv) at the outlet for the end label's velocity v (Q = A v for the Windkessel)."""
+    def _outlet(self, v, A, h, midpoint):
+        """(p_b, dp_b/dv at fixed A, dp_b/dA at fixed v) at the outlet for the end label's velocity v over the step and
+        the section A there (the Windkessel's flow is Q = A v; ``midpoint``: its capacitor's mean over the step)."""
         t = self.tube
         kind = t.outflow
-        v = Q_or_v
         if kind == "pressure":
             return t.p_out, 0.0, 0.0
         if kind == "non-reflecting":
