@@ -200,6 +200,16 @@ def test_what_open_ends_on_a_rod_cannot_run_is_refused_in_one_line():
     with pytest.raises(SceneError, match="fluid.ends") as e:
         Simulation(build_model(scene))
     assert "\n" not in str(e.value)
+    # an absorbing outlet and a non-uniform start (the straight tube has them, issue 23) are not on a rod yet
+    text = pipe_scene_text(("clamped", "free"), BETA, 1.0, 21, 2, 0.0, constraint="none")
+    wk = text.replace('sL = "outflow"', 'sL = "outflow", outflow = "windkessel", windkessel_R1 = 1.0, windkessel_C = 1.0, '
+                      'windkessel_R2 = 1.0')
+    start = text + '\n[[fluid.initial]]\nfrom = 0.0\nto = 0.5\nvelocity = 1.0\n'
+    for t, match in ((wk, "fluid.ends.outflow"), (start, "fluid.initial")):
+        assert t != text
+        with pytest.raises(SceneError, match=match) as e:
+            Simulation(build_model(parse_scene(t)))
+        assert "\n" not in str(e.value)
 
 
 def test_the_inextensible_rod_is_accepted_with_open_ends_only():

@@ -759,8 +759,6 @@ class _Validator:
         if e.s0 != "inflow" or e.sL != "outflow":
             self.bad("fluid.ends", "open ends come in a pair in this version: s0 = 'inflow' and sL = 'outflow'")
             return
-        if f.initial:
-            self.bad("fluid.initial", "an open tube starts from the steady flow of the inlet's state; remove fluid.initial")
         velocity_key = "fluid.ends.inflow_velocity" if e.inflow_velocity is not None else "fluid.velocity"
         if e.inflow_velocity is None:
             e["inflow_velocity"] = f.velocity

@@ -35,6 +35,8 @@ def open_end_limits(model):
     if model.rod is not None and not t.open:
         return ("fluid.ends: open ends on a [rod] (the coupled tube) run with an incompressible liquid in a rigid tube "
                 "(no [wall]) and a velocity inlet in this version")
+    if model.rod is not None and sc.fluid.initial:
+        return "fluid.initial: a non-uniform start with open ends on a [rod] is not available in this version"
     if model.rod is not None and sc.fluid.ends.outflow != "pressure":
         return ("fluid.ends.outflow: open ends on a [rod] run with a free jet (outflow = 'pressure') in this version")
     if t.open and not t.coupled and t.outflow == "non-reflecting" and not math.isfinite(t.Z_out):
