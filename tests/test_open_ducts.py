@@ -467,3 +467,19 @@ def test_a_non_uniform_start_with_open_ends_splits_as_linear_acoustics_says():
         assert abs(np.mean(p[plateau] - p0) / 50.0 - 1.0) < 0.015
         assert abs(np.mean(u[plateau]) * rho0 * c / (sign * 50.0) - 1.0) < 0.015
     assert abs(m["energy_balance"]) < 1e-13 * m["energy"]
+
+
+def test_a_resumed_windkessel_run_repeats_the_run(tmp_path):
+    """The capacitor's pressure (and the piston's last velocity) are state data: checkpoint data_inlet_outlet."""
+    from varint import run_scene
+    from varint.run.io import read_run
+
+    text = windkessel_scene(1e6, 1e-8, 1e7, 1e-3).replace("end = 1.0", "end = 0.05") + "[output]\nevery = 5\n"
+    sc = parse_scene(text)
+    run_scene(sc, str(tmp_path / "full.h5"), progress=False)
+    run_scene(sc, str(tmp_path / "part.h5"), progress=False, max_steps=23)
+    run_scene(sc, str(tmp_path / "part.h5"), progress=False, resume=True)
+    a, b = read_run(tmp_path / "full.h5"), read_run(tmp_path / "part.h5")
+    for k in a["fields"]:
+        assert np.array_equal(a["fields"][k], b["fields"][k], equal_nan=True), k
+    assert np.nanmax(a["fields"]["fluid/pressure"][-1]) > 1000.0  # the capacitor has charged
