@@ -172,7 +172,10 @@ def run(parcels, start="profile", end=1.2e-3, cfl=0.4, every=None, progress=Fals
     wl = ideal_gas_state(rw2[0], uw2[0], pw2[0], g, R=Rw2[0])
     wr = ideal_gas_state(rw2[1], uw2[1], pw2[1], g, R=Rw2[1])
     rh = {"captured": relative_residuals(rh_residuals(left, right, speed)),
-          "wave": relative_residuals(rh_residuals(wl, wr, SPEED)), "span": float(c[ir] - c[il])}
+          "wave": relative_residuals(rh_residuals(wl, wr, SPEED)), "span": float(c[ir] - c[il]),
+          # the two states themselves, captured and the wave's at the same places: (rho, u, p, R) behind, ahead
+          "states": {"captured": ((rho[il], u[il], p[il], R[il]), (rho[ir], u[ir], p[ir], R[ir])),
+                     "wave": ((rw2[0], uw2[0], pw2[0], Rw2[0]), (rw2[1], uw2[1], pw2[1], Rw2[1]))}}
     return {"parcels": parcels, "start": start, "limiter": limiter, "front": front, "rh": rh, "h": h, "steps": n, "wall": wall, "t": track_t, "x": track_x,
             "speed": speed, "speed_all": speed_all, "travel": float(track_x[-1] - track_x[0]),
             "compare": cmp_, "energy_error": energy_err, "entropy_ok": entropy_ok, "wave": wave,

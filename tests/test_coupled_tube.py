@@ -168,16 +168,14 @@ def test_newton_jacobian_is_the_derivative_of_the_residual(case):
 
 def test_free_gas_filled_tube_keeps_its_momenta_to_round_off_and_its_energy_bounded():
     """A bent free tube, spinning, with the gas sloshing along it (fluid.velocity = 2 m/s): P and J (about
-    the origin and the centre of mass) to round-off over 150 steps, energy error bounded, mass and
-    entropy exact."""
+    the origin and the centre of mass) to round-off over 150 steps, mass and entropy exact (the energy: below)."""
     model = build_model(coupled_scene(nodes=9, parcels=12,
                                       **{k: v for k, v in CASES["gas-rigid-free-3d"].items() if k != "gravity"}))
     sim = Simulation(model)
     N = model.N
     m0 = sim.monitors()
-    E0, P0, J0 = m0["energy"], m0["linear_momentum"], m0["angular_momentum"]
+    P0, J0 = m0["linear_momentum"], m0["angular_momentum"]
     eps = np.finfo(float).eps
-    worst_E = 0.0
     for _ in range(150):
         sim.step()
         mo = sim.monitors()
@@ -193,10 +191,26 @@ def test_free_gas_filled_tube_keeps_its_momenta_to_round_off_and_its_energy_boun
         assert np.allclose(mo["angular_momentum"], J0, rtol=0, atol=1000 * eps * J_scale)
         assert mo["mass"] == pytest.approx(m0["mass"], rel=1e-13)
         assert mo["entropy"] == m0["entropy"]
-        worst_E = max(worst_E, abs(mo["energy"] - E0))
-    # the energy error of the midpoint rule is bounded (here by the unresolved axial modes of the rod)
-    assert worst_E < 1e-4 * abs(E0)
     assert mo["frame_orthogonality"] < 1e-14
+
+
+def test_free_gas_filled_tube_energy_error_vanishes_as_the_step_is_refined():
+    """The continuum tube keeps its energy (outside truth); the midpoint step's error, relative to the energy that
+    moves (the kinetic energy: E0 is mostly the gas's internal energy, and 1e-4 of it is 1.4 % of the kinetic energy),
+    is below 0.5 % at h = 1 ms and falls at least 1.6-fold per halved step (measured 3.6e-3, 1.7e-3, 3.1e-4 of K at
+    h = 1, 0.5, 0.25 ms over 0.15 s: the rod's unresolved axial modes first, then second order)."""
+    kw = {k: v for k, v in CASES["gas-rigid-free-3d"].items() if k != "gravity"}
+    errs = []
+    for h in (1e-3, 5e-4):
+        sim = Simulation(build_model(coupled_scene(nodes=9, parcels=12, h=h, **kw)))
+        E0 = sim.monitors()["energy"]
+        worst, K = 0.0, 0.0
+        for _ in range(int(round(0.15 / h))):
+            sim.step()
+            mo = sim.monitors()
+            worst, K = max(worst, abs(mo["energy"] - E0)), max(K, mo["kinetic_energy"])
+        errs.append(worst / K)
+    assert errs[0] < 5e-3 and errs[0] / errs[1] > 1.6, errs
 
 
 def test_gravity_changes_the_momentum_by_exactly_h_mtot_g():

@@ -27,12 +27,21 @@ def model_of(*args, **kw):
     return build_model(parse_scene(pipe_text(*args, **kw)))
 
 
-def u_threshold(ends, beta, lo, hi, nodes=41, gamma=0.0, dim=2):
-    """(u_c, Omega_c) by the bisection of varint.analysis.thresholds.threshold on fluid.velocity (U = u / sqrt(beta))."""
+def u_threshold(ends, beta, lo, hi, nodes=41, gamma=0.0, dim=2, scan=12):
+    """(u_c, Omega_c) by the bisection of varint.analysis.thresholds.threshold on fluid.velocity (U = u / sqrt(beta)).
+
+    The bisection only looks inside [lo, hi]; the truth (pipe_stability) is the *first* loss of stability, so the
+    pipe is also checked stable at ``scan`` flows from 0.04 u_c up to lo: a false instability window below the
+    bracket fails here (it did not before issue 23)."""
     about = "static" if gamma else "initial"
     text = pipe_text(ends, beta, 1.0, nodes, dim, gamma)
     res = threshold(text, lo / np.sqrt(beta), hi / np.sqrt(beta), count=8, about=about, rtol=1e-5)
-    return res["value"] * np.sqrt(beta), res["frequency"]
+    uc = res["value"] * np.sqrt(beta)
+    for u in np.linspace(0.04 * uc, lo, scan):
+        grow = strongest(scene_modes(parse_scene(pipe_text(ends, beta, u, nodes, dim, gamma)), count=8,
+                                     about=about)["modes"])["growth_rate"]
+        assert grow <= 1e-9, (u / uc, grow)  # a supported pipe: exactly 0; a cantilever: decaying (< 0)
+    return uc, res["frequency"]
 
 
 def test_flow_matrices_integrate_the_catmull_rom_weights_exactly():

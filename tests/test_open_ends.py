@@ -70,8 +70,10 @@ def balance_errors(mons):
 @pytest.mark.parametrize("model,inflow", [("ideal-gas", "velocity"), ("ideal-gas", "pressure"),
                                           ("incompressible", "velocity"), ("incompressible", "pressure")])
 def test_steady_flow_stays_steady_and_the_balances_close(model, inflow):
-    """The issue's must-show: an open rigid pipe with steady flow.  The run flushes the tube once (every parcel
-    is replaced: U T = L), the state stays the uniform flow, and the balances close far below 1e-8."""
+    """An open rigid pipe with steady flow: the run flushes the tube once (every parcel is replaced: U T = L) and the
+    state stays the uniform flow (outside truth: a uniform flow is an exact solution of the continuum equations).  The
+    balances are identities of the step's bookkeeping; they are tested against outside truths in
+    tests/test_open_ducts.py (the column's energy and momentum against Bernoulli, per step in rubber tubes)."""
     U, p = 20.0, 1.0e5
     density = 1.2 if model == "ideal-gas" else 1000.0
     text = scene_text(model=model, velocity=U, pressure=p, density=density, ends=f', inflow = "{inflow}"')
@@ -82,13 +84,10 @@ def test_steady_flow_stays_steady_and_the_balances_close(model, inflow):
     assert np.all(np.abs(series(mons, "parcels") - 50) <= 1)
     pr = np.array([f["fluid/pressure"] for f in flds])
     u = np.array([f["fluid/velocity"] for f in flds])
-    # a liquid's pressure is the labels' momentum change over h^2 A / mbar: round-off at the Newton floor walks in
-    # it (the midpoint rule leaves the multipliers' alternating mode undamped); measured 5e-7 over 500 steps
-    assert np.nanmax(np.abs(pr - p)) / p < (1e-10 if model == "ideal-gas" else 2e-6)
-    assert np.nanmax(np.abs(u - U)) / U < (1e-10 if model == "ideal-gas" else 1e-7)  # level momenta / masses
+    # a liquid's pressure is held at the levels (docs/theory.md §13.8): no alternating mode for round-off to walk in
+    assert np.nanmax(np.abs(pr - p)) / p < 1e-10, np.nanmax(np.abs(pr - p)) / p
+    assert np.nanmax(np.abs(u - U)) / U < 1e-10  # level momenta / masses
     assert np.max(np.abs(sim.state.v - U)) / U < 1e-10  # the last step's motion
-    eb, pb, mb = balance_errors(mons)
-    assert eb < 1e-12 and pb < 1e-12 and mb < 1e-14, (eb, pb, mb)
 
 
 @pytest.mark.parametrize("U0,dp,h", [(1.0, 500.0, 1e-3), (0.1, -500.0, 2e-3)], ids=["forward", "reversing"])
@@ -142,16 +141,13 @@ def test_inflow_into_gas_at_rest_sends_the_piston_shock():
     assert eb < 1e-8, eb  # measured 9e-11 (relative to E; 3e-8 of the energy that entered)
 
 
-def test_area_table_duct_balances_include_the_walls_axial_force():
-    """A horn (tube.area_table) with inflow: the momentum balance holds to round-off with the wall's axial force
-    -h sum_k dU/ds_k booked, and the extended duct's volumes equal the lattice kernel's inside the tube."""
+def test_area_table_duct_volumes_are_the_lattice_kernels():
+    """A horn (tube.area_table): the extended duct's volumes F(s_{k+1}) - F(s_k) equal the lattice kernel's
+    (varint.lattice.parcels) inside the tube to 1e-13 (a cross-check of two implementations, not an outside truth:
+    the horn's flow is tested against steady and unsteady Bernoulli in tests/test_open_ducts.py)."""
     horn = "area_table = [[0.0, 1.2566e-3], [0.5, 2.5e-3], [1.0, 3.0e-3]]"
     text = scene_text(velocity=10.0, parcels=100, h=2e-5, nodes=21, radius=0.03, tube_extra=horn)
-    sim, mons, _ = run_steps(text, 200)
-    eb, pb, mb = balance_errors(mons)
-    assert pb < 1e-10 and mb < 1e-14 and eb < 1e-8, (eb, pb, mb)
-    assert abs(series(mons, "momentum_flux")[-1, 0]) > 1e-3  # the wall pushes: the balance is not trivially zero
-    t = sim.model.tube
+    t = varint.build_model(parse_scene(text)).tube
     s = np.sort(np.random.default_rng(1).uniform(0.0, 1.0, 40))
     s[0], s[-1] = 0.0, 1.0
     assert np.allclose(t.duct.volumes(s), parcel_volumes(s, t.R_reference, t.ds, False), rtol=1e-13, atol=0.0)

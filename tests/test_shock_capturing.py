@@ -489,12 +489,17 @@ def test_traveling_shock_keeps_its_speed_and_profile():
     behind = np.array([o <= -0.2 for o in (-0.3, -0.2, -0.1, -0.05, 0.1, 0.2)])
     for name, (got, want) in r["compare"].items():
         assert np.all(np.abs(got - want)[behind] < 5e-3 * far[name]), (name, got, want)
-    # the paper's jump conditions across the captured shock (states 4 parcels either side): satisfied to the
-    # resolution error, i.e. as well as the wave's own smooth profile sampled at the same two points (measured
-    # 2.2e-3 / 7.8e-2 / 4.6e-2 against 3e-16 / 6.9e-2 / 3.9e-2; half of each at 800 parcels)
-    cap, ref = r["rh"]["captured"], r["rh"]["wave"]
-    assert cap["mass"] < 5e-3
-    assert cap["momentum"] < 1.3 * ref["momentum"] and cap["energy"] < 1.3 * ref["energy"], (cap, ref)
+    # across the captured shock: the states 4 parcels either side of its steepest jump are the exact wave's at the
+    # same two places (outside truth: the traveling wave of varint.exact.shocks, whose states satisfy the paper's
+    # jump conditions), pressure, density and velocity within 2.5 % of their jumps (measured 0.5 / 0.4 / 1.1 % behind,
+    # 1.1 / 1.7 / 0.9 % ahead), the radius within 15 % of its jump (measured 11 / 9 %: 1 % of R; the wall rings behind
+    # the front); and the mass condition with the fitted speed within 5e-3 (measured 2.2e-3)
+    st = r["rh"]["states"]
+    jumps = np.abs(np.array(st["wave"][0]) - np.array(st["wave"][1]))
+    for side in (0, 1):
+        err = np.abs(np.array(st["captured"][side]) - np.array(st["wave"][side])) / jumps
+        assert np.all(err[:3] < 0.025) and err[3] < 0.15, (side, err)
+    assert r["rh"]["captured"]["mass"] < 5e-3
 
 
 def test_tube_law_wall_needs_its_discrete_gradient():

@@ -244,7 +244,6 @@ def cmd_modes(args):
 def cmd_static(args):
     import numpy as np
 
-    from .errors import VarintError as _VE
     from .model.model import build_model
     from .model.statics import static_equilibrium
     from .run.runner import check_output, default_output
@@ -255,7 +254,7 @@ def cmd_static(args):
     check_output(out, args.scene, force=args.force, resumable=False)
     model = build_model(scene)
     if model.rod is None:
-        raise _VE(f"{args.scene}: static equilibrium is available for scenes with a [rod] only in this version")
+        return _static_tube(args, scene, model, out)
     if model.coupled and model.tube.open_ends:
         return _static_flowing(scene, model, out)
     if model.coupled:
@@ -291,6 +290,31 @@ def _write_static(out, scene, sim, load_steps, extra=None):
         w.set_status("finished")
     finally:
         w.close()
+
+
+def _static_tube(args, scene, model, out):
+    """``varint static`` of the straight tube (varint.model.statics.tube_static, docs/theory.md §13.10): one record at
+    rest; what has no isolated equilibrium (open ends, no [wall]) is refused in one line."""
+    import numpy as np
+
+    from .errors import VarintError as _VE
+    from .model.statics import tube_static
+    from .run.simulation import Simulation
+    from .schemes.state import State
+
+    try:
+        z, info = tube_static(model)
+    except _VE as exc:
+        raise _VE(f"{args.scene}: {exc}") from None
+    t = model.tube
+    sim = Simulation(model)
+    st = sim.state
+    sim.state = State(0, 0.0, z[:t.nq], np.zeros_like(st.p), z[t.nq:], np.zeros_like(st.v), data=st.data)
+    _write_static(out, scene, sim, 0)
+    R = t.config(z).R
+    print(f"wrote {out}: static equilibrium of the tube in {info['iterations']} Newton iterations; "
+          f"radius {R.min():.6g} to {R.max():.6g} m")
+    return 0
 
 
 def _static_coupled(args, scene, model, out):

@@ -26,9 +26,20 @@ def _tube(model):
     return model.tube if hasattr(model, "tube") else model
 
 
-def linearization(model, z=None):
+def linearization(model, z=None, basis=False):
     """Mass (nq,) and condensed stiffness (nq, nq) of the tube's blocks, dense, about z (default: the
-    initial state)."""
+    initial state).
+
+    The algebraic unknowns y (a quasistatic wall's radii, a liquid's multipliers) satisfy K_lq x + K_ll y = 0.  Those
+    with their own stiffness (the radii) are condensed statically.  A liquid's multipliers have K_bb = 0 (the
+    constraint is linear in them); after the radii's condensation they see each other through the wall's compliance,
+    K_bb = -K_ba K_aa^-1 K_ab.  With its eigen-split K_bb = U_r S U_r^T + U_0 0 U_0^T, the range part is condensed too
+    and the null part leaves constraints on the inertial unknowns, U_0^T K_bq x = 0, whose multipliers do no work on
+    admissible motion: x = Z w, Z an orthonormal basis of their null space, and
+    Z^T (K_qq - K_qa K_aa^-1 K_aq - K_qb U_r S^-1 U_r^T K_bq) Z w = w^2 Z^T M Z w (docs/theory.md §13.10).  With
+    ``basis`` the function returns (M, K, Z): Z None without such constraints (M the diagonal mass, K the condensed
+    stiffness), else the reduced dense mass Z^T diag(M) Z and stiffness on the basis Z.  (Before, K_ll was inverted
+    whole: a LinAlgError for every liquid in a dynamic wall, where K_ll = 0.)"""
     model = _tube(model)
     if z is None:
         z = np.concatenate([model.q_init, model.lam_init])
@@ -36,10 +47,43 @@ def linearization(model, z=None):
     K = (model.B.T @ H @ model.B).toarray() if sp.issparse(H) else model.B.T @ H @ model.B
     nq = model.nq
     Kqq = K[:nq, :nq]
+    Z = None
     if model.nlam:
-        Kql, Kll = K[:nq, nq:], K[nq:, nq:]
-        Kqq = Kqq - Kql @ np.linalg.solve(Kll, Kql.T)
-    return model.mass.copy(), 0.5 * (Kqq + Kqq.T)
+        K = 0.5 * (K + K.T)
+        lam = np.arange(nq, K.shape[0])
+        diag = np.abs(np.diag(K))[lam]
+        # the algebraic unknowns with their own stiffness (a quasistatic wall's radii) first: condensed statically
+        a = lam[diag > 1e-14 * max(float(np.max(diag)) if diag.size else 0.0, 1e-300)]
+        b = np.setdiff1d(lam, a)  # the multipliers: K_bb = 0, the constraint is linear in them
+        keep = np.r_[np.arange(nq), b]
+        if len(a):
+            K = K[np.ix_(keep, keep)] - K[np.ix_(keep, a)] @ np.linalg.solve(K[np.ix_(a, a)], K[np.ix_(a, keep)])
+        else:
+            K = K[np.ix_(keep, keep)]
+        Kqq = K[:nq, :nq]
+        if len(b):
+            Kqb, Kbb = K[:nq, nq:], 0.5 * (K[nq:, nq:] + K[nq:, nq:].T)
+            # through a compliant wall the multipliers see each other; the null space of K_bb holds the constraints
+            # that stay constraints on the inertial unknowns
+            big = float(np.max(np.abs(Kbb))) if Kbb.size else 0.0
+            S, U = (np.linalg.eigh(Kbb) if big > 0.0 else (np.zeros(len(b)), np.eye(len(b))))
+            rank = np.abs(S) > 1e-10 * max(big, 1e-300)
+            if np.any(rank):
+                Ur = U[:, rank]
+                Kqq = Kqq - (Kqb @ Ur) @ ((Ur.T @ Kqb.T) / S[rank][:, None])
+            if not np.all(rank):
+                C = U[:, ~rank].T @ Kqb.T  # the constraints on the inertial unknowns
+                Z = sla.null_space(C, rcond=1e-10)
+    Kqq = 0.5 * (Kqq + Kqq.T)
+    if not basis:
+        if Z is not None:
+            raise VarintError("modes: this model's algebraic unknowns constrain its inertial ones; use linearization(..., "
+                              "basis=True)")
+        return model.mass.copy(), Kqq
+    if Z is None:
+        return model.mass.copy(), Kqq, None
+    Kr = Z.T @ Kqq @ Z
+    return Z.T @ (model.mass[:, None] * Z), 0.5 * (Kr + Kr.T), Z
 
 
 #: above this many inertial unknowns the tube's modes come from a sparse shift-invert solver
@@ -69,8 +113,15 @@ def modes(model, count=20, z=None, vectors=False, method="auto"):
         H = sp.csr_matrix(model.hessian(model.config(z)))
         K = (model.B.T @ H @ model.B).tocsc()
         return sparse_modes_of(0.5 * (K + K.T), model.mass.copy(), count, vectors)
-    M, K = linearization(model, z)
-    return modes_of(K, M, count, vectors)
+    M, K, Z = linearization(model, z, basis=True)
+    if Z is None:
+        return modes_of(K, M, count, vectors)
+    if Z.shape[1] == 0:
+        raise VarintError("modes: the model has no motion left: its constraints fix every inertial unknown (e.g. a "
+                          "liquid in a rigid tube between a velocity inlet and fixed volumes)")
+    w2, X = sla.eigh(K, M)
+    res = _modes_from_w2(w2[:count], 1e-14 * max(abs(w2[-1]), abs(w2[0]), 1e-300))
+    return (res, (Z @ X)[:, :count]) if vectors else res
 
 
 def modes_of(K, M, count, vectors=False):

@@ -95,9 +95,34 @@ def scene_modes(scene, count=20, about="initial", source=None):
                           "note": "frequencies seen from the frame spinning with the rod (rod.initial.angular_velocity)"}
             label_whirl(res, X, model.rod, spin)
     else:
+        t = model.tube
+        if t is not None and t.open_ends:
+            # docs/theory.md §13.10: the open straight tube about its initial lattice, the flow frozen
+            from ..terms.open_ends import open_end_limits
+
+            why = open_end_limits(model)
+            if why is not None:
+                raise VarintError(f"{source}: modes: {why}")
+            if t.outflow != "pressure":
+                raise VarintError(f"{source}: modes: fluid.ends.outflow = '{t.outflow}' absorbs the waves that reach it "
+                                  "(its modes are damped, not normal modes); the modes with a pressure outlet are those of "
+                                  "outflow = 'pressure'")
+            if about == "static":
+                raise VarintError(f"{source}: --about static: with open fluid.ends the fluid flows; the modes are about "
+                                  "the initial lattice (--about initial)")
+            U = max(abs(t.U_in), abs(float(model.scene.fluid.velocity)))
+            if U > 0.0:
+                d["note"] = (f"modes of the open tube about its initial lattice with the flow ({U:.3g} m/s) frozen: the "
+                             "mean flow's convection (a shift of relative order Mach^2 for sound) is left out")
+        z = None
         if about == "static":
-            raise VarintError(f"{source}: --about static is available for [rod] scenes only")
-        res = modes(model, count=count)
+            from ..model.statics import tube_static
+
+            z = tube_static(model)[0]
+        try:
+            res = modes(model, count=count, z=z)
+        except VarintError as exc:
+            raise VarintError(f"{source}: {exc}") from None
     d["modes"] = res
     return d
 

@@ -19,7 +19,7 @@ from ..lattice.lie import cay, hat
 
 __all__ = ["static_equilibrium", "load_continuation", "rotating_frame_kinetics", "check_rotating_base", "lumped_mass",
            "turn_to_nearest_principal_axis", "rod_part", "refuse_constrained", "potential_gradient", "force_map",
-           "force_jacobian", "retract"]
+           "force_jacobian", "retract", "tube_static"]
 
 
 def rod_part(model):
@@ -294,3 +294,51 @@ def lumped_mass(model):
     """Diagonal of the kinetic metric per node and direction (rho A w_j for dr, I w_j for sigma), (N+1, 6)."""
     model = rod_part(model)
     return np.concatenate([np.repeat(model.node_mass[:, None], 3, 1), model.node_inertia], axis=1)
+
+
+def tube_static(model, tol=1e-11, max_iter=50):
+    """The static equilibrium of the straight tube (no [rod]): the labels, radii and multipliers z = (q, lam) with
+    B^T grad U(config(z)) = 0 (docs/theory.md §13.10), by Newton with the exact Hessian B^T H B from the initial state.
+
+    A liquid keeps its parcels' volumes (its multipliers are the pressures that hold the wall); a gas finds the
+    pressures the wall balances.  Returns (z, info).  Refused in one line: open ends (the fluid flows) and a tube
+    without [wall] (its fluid at rest, uniform, is the equilibrium: nothing to solve).  A periodic tube's free
+    translation of the labels is held where it is by a Levenberg shift of 1e-10 of the diagonal."""
+    import scipy.sparse.linalg as spla
+
+    from ..errors import VarintError
+
+    t = model.tube if hasattr(model, "tube") else model
+    if t is None or getattr(model, "rod", None) is not None:
+        raise VarintError("static: the straight tube's statics need a scene without [rod]")
+    if getattr(t, "open_ends", False):
+        raise VarintError("static: with open fluid.ends the fluid flows through the tube: it has no static equilibrium "
+                          "(a tube conveying fluid on a [rod] has its steady flowing state)")
+    if not t.has_wall:
+        raise VarintError("static: a rigid tube without [wall] has nothing to balance (its fluid at rest, uniform, is "
+                          "the equilibrium); add a [wall]")
+    z = np.concatenate([t.q_init, t.lam_init])
+    scale = np.ones(t.nz)
+    p_scale = max(abs(float(t.scene.fluid.pressure or 0.0)), 1.0) if t.has_fluid else 1.0
+    for name, sl in t.layout.items():
+        scale[sl] = {"s": t.L / max(t.M, 1), "R": t.R0}.get(name, p_scale)
+    it, err = 0, np.inf
+    for it in range(1, max_iter + 1):
+        cfg = t.config(z)
+        g = t.B.T @ t.gradient(cfg)
+        H = (t.B.T @ t.hessian(cfg) @ t.B).tocsc()
+        if t.periodic:  # the free translation of every label: held where it is
+            H = H + sp.diags(1e-10 * np.maximum(np.abs(H.diagonal()), 1e-300)).tocsc()
+        try:
+            dz = -spla.spsolve(H, g)
+        except RuntimeError as exc:
+            raise VarintError(f"static: the tube's stiffness is singular ({exc}); no isolated equilibrium") from None
+        if not np.all(np.isfinite(dz)):
+            raise VarintError("static: the tube's stiffness is singular; no isolated equilibrium")
+        z = z + dz
+        err = float(np.max(np.abs(dz) / scale))
+        if err <= tol:
+            break
+    else:
+        raise VarintError(f"static: Newton did not converge in {max_iter} iterations (scaled update {err:.3g})")
+    return z, {"iterations": it, "error": err}

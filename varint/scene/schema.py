@@ -122,6 +122,14 @@ SCHEMA = MappingProxyType({
         Key("inflow_pressure", "float", None, "Pa", "open ends: pressure of the entering fluid (default fluid.pressure): a pressure inlet's "
             "pressure; with inflow_density, the entering gas's entropy"),
         Key("outflow_pressure", "float", None, "Pa", "open ends: pressure at the outlet s = L (default environment.external_pressure: a free jet)"),
+        Key("outflow", "str", "pressure", "", "open ends: the outlet (pressure: outflow_pressure on the last parcel; non-reflecting: "
+            "outflow_pressure + rho c (u - fluid.velocity), an outgoing wave leaves without reflection; windkessel: the three-element "
+            "R-C-R load windkessel_R1, _C, _R2 draining to outflow_pressure), docs/theory.md §13.9",
+            choices=("pressure", "non-reflecting", "windkessel")),
+        Key("windkessel_R1", "float", None, "Pa s/m^3", "outflow = 'windkessel': proximal resistance R1 (p_outlet = p_C + R1 Q)", low=0.0),
+        Key("windkessel_C", "float", None, "m^3/Pa", "outflow = 'windkessel': compliance C (C dp_C/dt = Q - (p_C - outflow_pressure)/R2)",
+            low=0.0, low_open=True),
+        Key("windkessel_R2", "float", None, "Pa s/m^3", "outflow = 'windkessel': distal resistance R2", low=0.0, low_open=True),
     ),
     "fluid.initial[]": (
         Key("from", "float", REQUIRED, "m", "start of the region"),
@@ -936,19 +944,23 @@ class _Validator:
         external pressure (a free jet)."""
         e = f.ends
         opened = e.s0 == "inflow" or e.sL == "outflow"
-        inlet_keys = ("inflow_velocity", "inflow_density", "inflow_pressure", "outflow_pressure")
+        inlet_keys = ("inflow_velocity", "inflow_density", "inflow_pressure", "outflow_pressure", "windkessel_R1",
+                      "windkessel_C", "windkessel_R2")
         if not opened:
             for k in inlet_keys:
                 if e[k] is not None:
                     self.bad(f"fluid.ends.{k}", "only for open ends (s0 = 'inflow', sL = 'outflow')")
-            if e.inflow != "velocity":
-                self.bad("fluid.ends.inflow", "only for open ends (s0 = 'inflow', sL = 'outflow')")
+            for k, default in (("inflow", "velocity"), ("outflow", "pressure")):
+                if e[k] != default:
+                    self.bad(f"fluid.ends.{k}", "only for open ends (s0 = 'inflow', sL = 'outflow')")
             return
+        for k in ("windkessel_R1", "windkessel_C", "windkessel_R2"):
+            if (e[k] is None) == (e.outflow == "windkessel"):
+                self.bad(f"fluid.ends.{k}", "missing (required for outflow = 'windkessel')" if e[k] is None else
+                         "only for outflow = 'windkessel'")
         if e.s0 != "inflow" or e.sL != "outflow":
             self.bad("fluid.ends", "open ends come in a pair in this version: s0 = 'inflow' and sL = 'outflow'")
             return
-        if f.initial:
-            self.bad("fluid.initial", "an open tube starts from the steady flow of the inlet's state; remove fluid.initial")
         velocity_key = "fluid.ends.inflow_velocity" if e.inflow_velocity is not None else "fluid.velocity"
         if e.inflow_velocity is None:
             e["inflow_velocity"] = f.velocity

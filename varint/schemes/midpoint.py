@@ -40,6 +40,10 @@ def step_terms(model, scheme="midpoint"):
         terms.append(TubeKinetic(model.tube, model.tube_z.start, model.nz))
         pot = {"midpoint": TubeMidpointPotential, "trapezoidal": TubeTrapezoidalPotential}[scheme]
         terms.append(pot(model.tube, model.tube_z.start, model.nz))
+        if getattr(model.tube, "open", False) and getattr(model.tube, "level_constraint", False):
+            from ..terms.open_ends import OpenLevelConstraint
+
+            terms.append(OpenLevelConstraint(model.tube, model.tube_z.start, model.nz))
     if model.rod is not None:
         if scheme != "midpoint":
             raise ValueError(f"time.scheme: {scheme!r} is not available with [rod] (its Lie-group step is the midpoint scheme)")

@@ -15,6 +15,7 @@ from ..errors import SolverError
 from ..lattice.lie import cay_inv
 from ..terms.rod import CHI, unpack_level
 from ..terms.rod_constraint import constraint_jacobian, element_strain_residual
+from ..terms.tube_potential import Config as T_Config
 from .midpoint import make_scheme
 
 __all__ = ["OpenEndsStepping"]
@@ -50,8 +51,20 @@ class OpenEndsStepping:
         t = m.tube
         q, p, lam = st.q[m.tube_q], st.p[m.tube_p], st.lam[m.tube_lam]
         cfg = self._open_config(q, lam)
-        K = 0.5 * float(np.sum(p * p / t.mass))
-        pot = t.energies(cfg)
+        if t.level_constraint:
+            # a liquid held at the levels: the energy of the step that ended at the level (its velocities, the wall's
+            # potential at its midpoint; record 0: the initial data's).  The level momentum p_n = D2 L_d' of this form
+            # holds the wall's midpoint half-impulse -(h/2) grad U_wall, which the liquid's level impulse balances only
+            # at the next level: read as a velocity it would be a kinetic energy that is not there (p_ext alone: 2 J
+            # on a rubber tube at rest, docs/theory.md §13.8)
+            v = st.v[m.tube_p]
+            K = 0.5 * float(np.sum(t.mass * v * v))
+            mid = self._open_config(q - 0.5 * self.h * v, lam)
+            cfg_pot = T_Config(cfg.s, mid.R, cfg.mu)
+            pot = t.energies(cfg_pot)
+        else:
+            K = 0.5 * float(np.sum(p * p / t.mass))
+            pot = t.energies(cfg)
         P = float(np.sum(p[t.layout["s"]]))  # the labels' (a wall's radial momenta are not axial)
         return K + sum(pot.values()), K, pot, P, t.fluid_mass(cfg), cfg
 
@@ -66,31 +79,54 @@ class OpenEndsStepping:
         self._open_update(self._state)
         self._state.data = self.model.state_data()
 
-    def _open_fluxes(self, q0, z):
-        """Book one step's boundary fluxes (docs/theory.md §13.4) from the step's own midpoint data, and move the piston.
+    def _open_fluxes(self, q0, p0, z):
+        """Book one step's boundary fluxes (docs/theory.md §13.4, §13.8) and move the piston.
 
-        Energy: the piston's work dS_p dU/ds_p(c_mid) and the end pressures' work (f^- + f^+) ds / h.  Axial momentum:
-        the piston's reaction h dU/ds_p, the wall's axial force -h sum_k dU/ds_k (zero in a uniform duct) and the end
-        pressures' impulses f^- + f^+.  Exact identities of the step but for the midpoint rule's own energy error
-        U(q1) - U(q0) - dq . grad U(c_mid), which vanishes when the parcels' volumes do not change."""
+        A gas (the midpoint potential): energy, the piston's work dS_p dU/ds_p(c_mid) and the end forces' work
+        (f^- + f^+) ds / h; axial momentum, the piston's reaction h dU/ds_p, the wall's axial force -h sum_k dU/ds_k (zero
+        in a uniform duct) and the end forces' impulses f^- + f^+.  Exact identities of the step but for the midpoint
+        rule's own energy error U(q1) - U(q0) - dq . grad U(c_mid), which vanishes when the parcels' volumes do not
+        change.  A liquid held at the levels: the pressures and the end forces act at level n, h G(q_n)^T mu_n + f_n;
+        the momentum changes by their sum over the free labels, the energy by their work with the labels' mean
+        velocity across the level, (v_{n-1/2} + v_{n+1/2})/2 (the piston's: its central difference), up to
+        mu . G(q_n) (q_{n+1} - q_{n-1}) / 2 = O(h^3): the pressures' work on the moving constraint surface."""
         m, h = self.model, self.h
         t = m.tube
         pt = self.action.point(q0, z)
-        cfg = t.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
-        g = t.gradient(cfg)[: t.M + 1]
-        dE, dP = 0.0, -h * float(np.sum(g))
-        if t.n_fixed:
-            dE += h * t.U_in * g[0]
-            dP += h * g[0]
-        (i0, f0), (i1, f1) = t.forces[0].end_forces(h)
-        for i, f in ((i0, f0), (i1, f1)):
-            if i is not None:
-                dE += 2.0 * f * (pt.q1[i] - pt.q0[i]) / h
-                dP += 2.0 * f
+        nf = t.n_fixed
+        after = t.piston_after(h) if nf else None
+        forces = t.forces[0].last
+        dE = 0.0
+        if t.level_constraint:
+            term = next(x for x in self.action.terms if x.name == "level_constraint")
+            g = t.level_weight * term.gradient_at_level(pt.q0, pt.lam, 0, h)[: t.M + 1]
+            dP = -h * float(np.sum(g))
+            if nf:  # the piston's work with the gauge pressure (below)
+                g0 = t.level_weight * term.gradient_at_level(pt.q0, pt.lam - t.p_ext, 0, h)[0]
+                dE += h * g0 * 0.5 * ((after - t.piston) / h + t.piston_velocity)
+                dP += h * g[0]
+            # a uniform pressure does no work on a liquid: the ends' flow work is booked with gauge pressures p - p_ext
+            # (the datum's forces cancel the pressures' own on the end labels exactly; booked whole, the datum's work
+            # would leave p_ext h (Q_out - Q_in), the level's O(h^2) volume mismatch, in the balance)
+            for (i, fm, fp), (_, fm0, fp0) in zip(forces, t.forces[0].datum_forces(pt, t.p_ext)):
+                u_mean = 0.5 * (p0[i] / t.mass[i] + (pt.q1[i] - pt.q0[i]) / h)
+                dE += (fm + fp - fm0 - fp0) * u_mean
+                dP += fm + fp
+        else:
+            cfg = t.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
+            g = t.gradient(cfg)[: t.M + 1]
+            dP = -h * float(np.sum(g))
+            if nf:
+                dE += (after - t.piston) * g[0]
+                dP += h * g[0]
+            for i, fm, fp in forces:
+                dE += (fm + fp) * (pt.q1[i] - pt.q0[i]) / h
+                dP += fm + fp
         t.balance[3] += dE
         t.balance[4] += dP
-        if t.n_fixed:
-            t.piston += h * t.U_in
+        if nf:
+            t.piston_velocity = (after - t.piston) / h
+            t.piston = after
 
     def _open_update(self, st):
         """Inject and remove parcels at a level (docs/theory.md §13.2-13.3), booking what they carry.
@@ -132,18 +168,25 @@ class OpenEndsStepping:
                 s_new = duct.below(labels[0], V_in)
                 V_new = float(duct.volumes(np.array([s_new, labels[0]]))[0])
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([t.m_in]), np.array([t.S_in]))[0])
-                if t.n_fixed:  # the piston is released with its level momentum mbar U_in; a new piston upstream
+                if t.n_fixed:  # the piston is released with its level momentum mbar u_p (its last step's velocity)
                     mb = 0.5 * (t.m_in + t.m[0])
-                    q, p, v = np.r_[t.piston, q], np.r_[mb * t.U_in, p], np.r_[t.U_in, v]
-                    dP, dE = mb * t.U_in, 0.5 * mb * t.U_in ** 2 + psi
+                    up = t.piston_velocity
+                    q, p, v = np.r_[t.piston, q], np.r_[mb * up, p], np.r_[up, v]
+                    dP, dE = mb * up, 0.5 * mb * up ** 2 + psi
                     t.piston = s_new
+                    t.piston_velocity = t.U_in  # the new piston, in the inlet's section
                 else:  # pressure inlet: half the new parcel joins the first label, half is the new first label
+                    # the new label carries the first label's volume flux (in a varying duct a faster or slower speed: a
+                    # liquid's volumes hold, and the level's constraint work stays O(h^3), docs/theory.md §13.8)
                     v0 = p[0] / (0.5 * t.m[0])
+                    v_new = v0 * float(duct.A(labels[0])) / float(duct.A(s_new))
                     p[0] = 0.5 * (t.m_in + t.m[0]) * v0
-                    q, p, v = np.r_[s_new, q], np.r_[0.5 * t.m_in * v0, p], np.r_[v[0], v]
-                    dP, dE = t.m_in * v0, 0.5 * t.m_in * v0 ** 2 + psi
+                    q, p, v = np.r_[s_new, q], np.r_[0.5 * t.m_in * v_new, p], np.r_[v[0] * v_new / v0 if v0 else v[0], v]
+                    dP = 0.5 * t.m_in * (v0 + v_new)
+                    dE = 0.25 * t.m_in * (v0 ** 2 + v_new ** 2) + psi
                 if t.incompressible:
-                    lam = np.r_[lam[0], lam]
+                    # the new parcel's pressure (the predictor, and the field until its first step): extrapolated
+                    lam = np.r_[2.0 * lam[0] - lam[1] if len(lam) > 1 else lam[0], lam]
                 t.m, t.S = np.r_[t.m_in, t.m], np.r_[t.S_in, t.S]
                 t.balance[3:] += [dE, dP, t.m_in]
                 changed = True
@@ -177,12 +220,13 @@ class OpenEndsStepping:
                 s_new = duct.above(labels[-1], V_new)
                 psi = 0.0 if t.incompressible else float(t.eos.psi(np.array([V_new]), np.array([m_new]), np.array([S_new]))[0])
                 vl = p[-1] / (0.5 * t.m[-1])
+                v_new = vl * float(duct.A(labels[-1])) / float(duct.A(s_new))  # the same volume flux (as at the inlet)
                 p[-1] = 0.5 * (t.m[-1] + m_new) * vl
-                q, p, v = np.r_[q, s_new], np.r_[p, 0.5 * m_new * vl], np.r_[v, v[-1]]
+                q, p, v = np.r_[q, s_new], np.r_[p, 0.5 * m_new * v_new], np.r_[v, v[-1] * v_new / vl if vl else v[-1]]
                 if t.incompressible:
-                    lam = np.r_[lam, lam[-1]]
+                    lam = np.r_[lam, 2.0 * lam[-1] - lam[-2] if len(lam) > 1 else lam[-1]]
                 t.m, t.S = np.r_[t.m, m_new], np.r_[t.S, S_new]
-                t.balance[3:] += [0.5 * m_new * vl ** 2 + psi, m_new * vl, m_new]
+                t.balance[3:] += [0.25 * m_new * (vl ** 2 + v_new ** 2) + psi, 0.5 * m_new * (vl + v_new), m_new]
                 changed = True
                 continue
             last_out = labels[-2] >= t.L if t.filled else 0.5 * (labels[-2] + labels[-1]) >= t.L
@@ -226,7 +270,8 @@ class OpenEndsStepping:
         E0, P0, mass0, fE, fP, fm = t.balance
         p = st.p[m.tube_p]
         ns = t.layout["s"].stop
-        Kw = 0.5 * float(np.sum(p[ns:] ** 2 / t.mass[ns:]))
+        Kw = (0.5 * float(np.sum(t.mass[ns:] * st.v[m.tube_p][ns:] ** 2)) if t.level_constraint
+              else 0.5 * float(np.sum(p[ns:] ** 2 / t.mass[ns:])))
         out = {"kinetic_energy": K, "energy_fluid_kinetic": K - Kw, "energy_wall_kinetic": Kw}
         for k, val in pot.items():
             out[f"energy_{k}"] = val
@@ -253,13 +298,13 @@ class OpenEndsStepping:
         t = m.tube
         q, p, lam = st.q[m.tube_q], st.p[m.tube_p], st.lam[m.tube_lam]
         cfg = self._open_config(q, lam)
-        M, Mx = t.M, t.M_max
+        Mx = t.M_max
         rho = t.density(cfg)
         pressure = lam.copy() if t.incompressible else t.eos.pressure(rho, t.S)
         ns = t.layout["s"].stop
         u = p[:ns] / t.mass[:ns]
         if t.n_fixed:
-            u = np.r_[t.U_in, u]
+            u = np.r_[t.piston_velocity, u]
         lab = lambda x: np.r_[x, np.full(Mx + 1 - len(x), np.nan)]  # noqa: E731
         par = lambda x: np.r_[x, np.full(Mx - len(x), np.nan)]  # noqa: E731
         out = {"fluid/s": lab(cfg.s.copy()), "fluid/density": par(rho), "fluid/pressure": par(pressure),

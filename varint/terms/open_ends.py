@@ -11,8 +11,11 @@ those of varint.terms.tube_potential (internal energy, incompressibility) on thi
 positions ``cfg.s``, multipliers ``cfg.mu``), with values, gradients and tridiagonal Hessians in
 configuration index space.  Rigid wall only (uniform radius or ``tube.area_table``): the radii are data.
 
-The end forces enter by Lagrange-d'Alembert (varint.terms.forces): the outlet pressure on the last label,
-f^- = f^+ = -(h/2) p_out A_out, and at a pressure inlet p_in on the first label, f^± = +(h/2) p_in A_in.
+The end forces enter by Lagrange-d'Alembert (varint.terms.forces, :class:`EndPressures`): the outlet's pressure on the
+last label and at a pressure inlet p_in on the first, each on the section where that label is (docs/theory.md §13.8;
+the outlets of §13.9).  A liquid on the straight tube is held at the levels (:class:`OpenLevelConstraint`).  A dynamic
+wall's parcels use the lattice kernels on an extended lattice (:class:`ExtendedLattice`); the coupled tube's centreline
+is extended by :class:`CoupledExtension`.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ import scipy.sparse as sp
 
 from .forces import Declaration, Force
 
-__all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures"]
+__all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures", "OpenLevelConstraint",
+           "section_at", "open_end_limits"]
 
 
 class Duct:
@@ -198,12 +202,43 @@ class OpenIncompressibility(_OpenParcelTerm):
         return np.concatenate([r, jr, jc]), np.concatenate([c, jc, jr]), np.concatenate([v, jv, jv])
 
 
-class EndPressures(Force):
-    """The pressures at the open ends on the end labels (discrete Lagrange-d'Alembert, docs/theory.md §13.2-13.3).
+def section_at(x, R, ds):
+    """The section at ``x`` of the linear radius on the nodal radii ``R`` (0..N), continued beyond each end with the
+    end's section: (A, dA/dx, the two nodes of x's element, dA/dR at them).  Beyond an end, dA/dR is at the end node."""
+    R = np.asarray(R, dtype=np.float64)
+    N = len(R) - 1
+    if x <= 0.0:
+        return math.pi * R[0] ** 2, 0.0, (0, 0), (2.0 * math.pi * R[0], 0.0)
+    if x >= N * ds:
+        return math.pi * R[N] ** 2, 0.0, (N, N), (2.0 * math.pi * R[N], 0.0)
+    e = min(int(x / ds), N - 1)
+    t = x / ds - e
+    r = R[e] + (R[e + 1] - R[e]) * t
+    return (math.pi * r * r, 2.0 * math.pi * r * (R[e + 1] - R[e]) / ds, (e, e + 1),
+            (2.0 * math.pi * r * (1.0 - t), 2.0 * math.pi * r * t))
 
-    Outlet: f^- = f^+ = -(h/2) p_out A_out on the last label (the jet's pressure on the fluid that has not left);
-    pressure inlet: f^- = f^+ = +(h/2) p_in A_in on the first label.  Constant: no Jacobian block.  Their work
-    over a step is (f^- + f^+) times the end label's displacement, their impulse f^- + f^+ (the balances).
+
+class EndPressures(Force):
+    """The forces at the open ends on the end labels (discrete Lagrange-d'Alembert, docs/theory.md §13.2-13.3, §13.8).
+
+    Each end force is the end's pressure p_b times the section **where the end label is**, A(s_end): the force of
+    the fluid outside on the face of the fluid inside.  (With the reference sections A(0), A(L) instead, a label
+    inside a duct of varying section felt (p_b - p_parcel) A(0) + p_parcel (A(0) - A(s)): an error of the absolute
+    pressure times the change of section, which made a liquid's flow depend on the pressure datum.)  With this
+    section the end forces are minus the gradient of the reservoirs' work p_b F(s_end), F(s) = int_0^s A, the same
+    quadrature as the parcels' pressures, so a uniform pressure added everywhere cancels exactly: Sum_k p dV_k/ds
+    telescopes to p (A(s_M) - A(s_0)).
+
+    *Where in the step.*  A gas (the midpoint potential): f^- = f^+ = +-(h/2) p_b A(sbar) at the step's midpoint
+    sbar (and the radii's midpoint with a dynamic wall).  A liquid held at the levels (OpenLevelConstraint):
+    f^- = +-h p_b A(s^n) at level n, f^+ = 0, like its pressures' level impulse h G(q_n)^T mu_n.
+    The inlet (a pressure inlet) pushes the first label with p_in; the outlet pushes the last one back with
+    p_b: ``pressure`` p_out; ``non-reflecting`` p_out + Z (v - u_ref), the characteristic impedance Z = rho c of the
+    scene's fluid state (c the long-wave speed, with the wall's compliance) so that an outgoing wave
+    p' = Z u' leaves without reflection; ``windkessel`` p_c + R1 Q, Q = A v the step's outflow and p_c the
+    capacitor's pressure, C dp_c/dt = Q - (p_c - p_out)/R2 (trapezoidal over the step; p_c is state data).
+    v is the end label's velocity over the step, (s^{n+1} - s^n)/h.  The Jacobian is exact; the step's values are
+    kept in ``last`` (``after_step``) for the balances (their work is booked as flux through the ends, §13.4).
     """
 
     declaration = Declaration("open_ends", {"energy": None, "axial_momentum": None, "mass": None,
@@ -211,19 +246,244 @@ class EndPressures(Force):
 
     def __init__(self, tube):
         self.tube = tube
+        #: the accepted step's [(index in the tube's q block, f^-, f^+)] (``after_step``), for the balances
+        self.last = []
 
-    def end_forces(self, h):
-        """(index of the first free label in the tube's s block or None, its f^-; index of the last, its f^-)."""
+    # -- the boundary pressure of the outlet -------------------------------------------------------------
+    def _outlet(self, v, A, h, midpoint):
+        """(p_b, dp_b/dv at fixed A, dp_b/dA at fixed v) at the outlet for the end label's velocity v over the step and
+        the section A there (the Windkessel's flow is Q = A v; ``midpoint``: its capacitor's mean over the step)."""
         t = self.tube
-        sl = t.layout["s"]
-        first = (sl.start, 0.5 * h * t.p_in * t.duct.A_in) if t.inflow == "pressure" else (None, 0.0)
-        return first, (sl.stop - 1, -0.5 * h * t.p_out * t.duct.A_out)
+        kind = t.outflow
+        if kind == "pressure":
+            return t.p_out, 0.0, 0.0
+        if kind == "non-reflecting":
+            return t.p_out + t.Z_out * (v - t.u_ref), t.Z_out, 0.0
+        # windkessel: p_b = p_c + R1 Q; the midpoint's capacitor pressure is the mean over the step
+        Q = A * v
+        R1, C, R2 = t.windkessel
+        pc = t.p_c
+        dpc = 0.0
+        if midpoint:
+            a, b = C / h + 0.5 / R2, C / h - 0.5 / R2
+            pc1 = (pc * b + Q + t.p_out / R2) / a
+            pc = 0.5 * (pc + pc1)
+            dpc = 0.5 / a
+        return pc + R1 * Q, (R1 + dpc) * A, (R1 + dpc) * v  # (p_b, dp_b/dv at fixed A, dp_b/dA at fixed v)
+
+    def _R(self, q):
+        t = self.tube
+        if not t.has_wall:
+            return t.R_reference
+        R = t.R_reference.copy()
+        ns = t.layout["s"].stop
+        R[1:-1] += q[ns:ns + t.nR - 2]
+        return R
+
+    def _end_correction(self, which, x, xc, v, pt, i):
+        """(dp, d dp/dv, d dp/dx, d dp/dxc): the steady Bernoulli pressure change between the end section and the end
+        parcel where the lumped end label does not carry it, in a rigid duct of varying section (docs/theory.md §13.8).
+
+        The lattice holds the parcels whose centres are in the tube, so the end label at ``x`` is within half a parcel
+        of the end section, and its half parcel (from the parcel's centre ``xc``) is lumped at ``x``.  Label inside
+        the tube: the fluid between it and the end section is missing, p(x) = p_end + 1/2 rho v^2 (r^2 - 1),
+        r = A(x)/A_end (the volume flux A(x) v crosses the end section at v r).  Label beyond the end (the extended duct
+        has the end's section, so the lumped label does not accelerate in steady flow) with its parcel's centre inside:
+        the part of the half parcel inside the tube is missing its drop, p_end + 1/2 rho v^2 (1 - q^2),
+        q = A_end / A(xc).  Zero in a uniform duct and with a dynamic wall (its end labels stay beyond the ends)."""
+        t = self.tube
+        d = t.duct
+        if t.has_wall or d.uniform:
+            return 0.0, 0.0, 0.0, 0.0
+        outlet = which == "outlet"
+        A_end = d.A_out if outlet else d.A_in
+        inside = (x < t.L) if outlet else (x > 0.0)
+        if t.incompressible:
+            rho = t.rho0
+        else:  # the end parcel's density at level n
+            lab = np.r_[np.full(t.n_fixed, t.piston), pt.q0[: t.layout["s"].stop]]
+            rho = float(t.m[-1] / d.volumes(lab[-2:])[0]) if outlet else float(t.m[0] / d.volumes(lab[:2])[0])
+        if inside:
+            r = float(d.A(x)) / A_end
+            return (0.5 * rho * v * v * (r * r - 1.0), rho * v * (r * r - 1.0),
+                    rho * v * v * r * float(d.dA(x)) / A_end, 0.0)
+        if (xc >= t.L) if outlet else (xc <= 0.0):
+            return 0.0, 0.0, 0.0, 0.0
+        Ac = float(d.A(xc))
+        q = A_end / Ac
+        return 0.5 * rho * v * v * (1.0 - q * q), rho * v * (1.0 - q * q), 0.0, rho * v * v * q * q * float(d.dA(xc)) / Ac
+
+    def step_forces(self, pt, correction=True):
+        """[(i, f^-, f^+, {column: d f^-/d z_column})] of the step at ``pt``: i indexes the tube's q block (``correction``:
+        with the end correction of :meth:`_end_correction`)."""
+        t = self.tube
+        h = pt.h
+        ns = t.layout["s"].stop
+        level = t.level_constraint
+        out = []
+        ends = [(ns - 1, -1.0, "outlet")]
+        if t.inflow == "pressure":
+            ends.insert(0, (0, 1.0, "inlet"))
+        nothing = (0.0, 0.0, 0.0, 0.0)
+        for i, sign, which in ends:
+            v = (pt.q1[i] - pt.q0[i]) / h
+            # the neighbour of the end label (its parcel's other label; the piston is data)
+            j = i - 1 if which == "outlet" else i + 1
+            if level:
+                x = pt.q0[i]
+                xn = pt.q0[j] if j >= 0 else t.piston
+                A = section_at(x, self._R(pt.q0), t.ds)[0]
+                if which == "inlet":
+                    pb, dv = t.p_in, 0.0
+                else:
+                    pb, dv, _ = self._outlet(v, A, h, False)
+                dp, dp_v, _, _ = self._end_correction(which, x, 0.5 * (x + xn), v, pt, i) if correction else nothing
+                w = t.level_weight
+                out.append((i, w * sign * h * (pb + dp) * A, 0.0, {i: w * sign * A * (dv + dp_v)}))
+                continue
+            sbar = 0.5 * (pt.q0[i] + pt.q1[i])
+            if j >= 0:
+                snb, jcol = 0.5 * (pt.q0[j] + pt.q1[j]), j
+            else:  # the piston's midpoint (a velocity inlet has no inlet force: not reached)
+                snb, jcol = t.c0[0], None
+            Rbar = 0.5 * (self._R(pt.q0) + self._R(pt.q1))
+            A, dAds, nodes, dAdR = section_at(sbar, Rbar, t.ds)
+            if which == "inlet":
+                pb, dv, dA = t.p_in, 0.0, 0.0
+            else:
+                pb, dv, dA = self._outlet(v, A, h, True)
+            dp, dp_v, dp_x, dp_xc = (self._end_correction(which, sbar, 0.5 * (sbar + snb), v, pt, i) if correction
+                                     else nothing)
+            f = sign * 0.5 * h * (pb + dp) * A
+            cA = sign * 0.5 * h * (pb + dp + A * dA)  # d f / d A
+            jac = {i: sign * 0.5 * A * (dv + dp_v) + 0.5 * cA * dAds + sign * 0.5 * h * A * (0.5 * dp_x + 0.25 * dp_xc)}
+            if jcol is not None and dp_xc != 0.0:
+                jac[jcol] = sign * 0.5 * h * A * 0.25 * dp_xc
+            if t.has_wall:
+                for j, w in zip(nodes, dAdR):
+                    if 1 <= j <= t.nR - 2 and w != 0.0:
+                        jac[ns + j - 1] = jac.get(ns + j - 1, 0.0) + 0.5 * cA * w
+            out.append((i, f, f, jac))
+        return out
+
+    def datum_forces(self, pt, p):
+        """[(i, f^-, f^+)] of a uniform pressure ``p`` at both ends (with the step's end sections)."""
+        t = self.tube
+        saved = (t.p_in, t.p_out, t.outflow)
+        t.p_in, t.p_out, t.outflow = p, p, "pressure"
+        try:
+            return [(i, fm, fp) for i, fm, fp, _ in self.step_forces(pt, correction=False)]
+        finally:
+            t.p_in, t.p_out, t.outflow = saved
 
     def add(self, pt, d, level):
-        (i0, f0), (i1, f1) = self.end_forces(pt.h)
-        if i0 is not None:
-            d.tube_q[i0] += f0
-        d.tube_q[i1] += f1
+        for i, fm, fp, _ in self.step_forces(pt):
+            d.tube_q[i] += fm if level == 0 else fp
+
+    def jacobian(self, pt):
+        t = self.tube
+        rows, cols, vals = [], [], []
+        for i, _, _, jac in self.step_forces(pt):
+            for c, v in jac.items():
+                if v != 0.0:
+                    rows.append(i)
+                    cols.append(c)
+                    vals.append(v)
+        if not rows:
+            return None
+        n = t.nz
+        return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
+
+    def after_step(self, pt):
+        """Keep the accepted step's forces (the balances book them) and advance the Windkessel's capacitor."""
+        t = self.tube
+        self.last = [(i, fm, fp) for i, fm, fp, _ in self.step_forces(pt)]
+        if t.outflow == "windkessel":
+            i = t.layout["s"].stop - 1
+            sbar = 0.5 * (pt.q0[i] + pt.q1[i])
+            A = section_at(sbar, 0.5 * (self._R(pt.q0) + self._R(pt.q1)), t.ds)[0]
+            Q = A * (pt.q1[i] - pt.q0[i]) / pt.h
+            R1, C, R2 = t.windkessel
+            a, b = C / pt.h + 0.5 / R2, C / pt.h - 0.5 / R2
+            t.p_c = (t.p_c * b + Q + t.p_out / R2) / a
+
+
+class OpenLevelConstraint:
+    """The open straight tube's liquid held at the levels (SHAKE; docs/theory.md §13.8, as §10.12 on the coupled tube).
+
+    The step term h mu_n . g(q_n), g = V(s, R) - V0 the parcels' volumes at one level's own labels and radii, in place
+    of the midpoint's -h mu . (V(sbar, Rbar) - V0): D1 += h G(q_n)^T mu_n (the pressures' impulse at level n), and the
+    multiplier rows hold the new level, h g(q_{n+1}) = 0.  The midpoint constraint lets the levels alternate about the
+    constraint surface (a neutral mode at phase pi, §10.12); in a duct of varying section its coefficients change as the
+    labels move and the flow pumps it (measured: +-6e5 Pa growing without bound, from an inconsistency of 1e-7 m).
+    With the constraint at the levels an alternation is off the surface, and the mode is gone.  The piston of a
+    velocity inlet enters each level at its own position (t.piston, t.piston_after(h)).
+
+    The first step takes half the level-0 impulse (``tube.level_weight`` = 1/2; RATTLE's first half kick): the
+    momentum p_n of this form is M v_{n-1/2}, the velocity half a step before the level, so the initial data's M v(0)
+    is the momentum after half of level 0's impulse (with the whole impulse the run lags by h/2: a uniformly
+    accelerating column was h a / 2 fast)."""
+
+    name = "level_constraint"
+    order = 2
+
+    def __init__(self, tube, offset, nz):
+        self.tube, self.offset, self.nz = tube, offset, nz
+        self.term = next(x for x in tube.terms if x.name == "incompressibility")
+        self.Bq = tube.B[:, :tube.nq]
+        self.Bl = tube.B[:, tube.nq:]
+        self.BqT, self.BlT = self.Bq.T.tocsr(), self.Bl.T.tocsr()
+
+    def config(self, q, lam, level, h):
+        """The configuration at level n (``level`` 0) or n+1 (1) of a step of ``h``: the piston at its own position."""
+        t = self.tube
+        cfg = t.config(np.concatenate([q, lam]))
+        if t.n_fixed:
+            cfg.s[0] = t.piston if level == 0 else t.piston_after(h)
+        return cfg
+
+    def _grad(self, cfg):
+        t = self.tube
+        if t.label_problem(cfg) is not None:
+            return np.full(t.nconfig, np.nan)
+        gs, gR, gmu = np.zeros(t.index["R"]), np.zeros(t.nR), np.zeros(t.M)
+        self.term.gradient(cfg, {}, gs, gR, gmu)
+        return np.concatenate([gs, gR, gmu])
+
+    def _hess(self, cfg):
+        t = self.tube
+        if t.label_problem(cfg) is not None:
+            return sp.diags(np.full(t.nconfig, np.nan)).tocsr()
+        r, c, v = self.term.hessian(cfg, {}, t.index)
+        return sp.csr_matrix((v, (r, c)), shape=(t.nconfig, t.nconfig))
+
+    def value(self, pt):
+        return -pt.h * self.term.energy(self.config(pt.q0, pt.lam, 0, pt.h), {})
+
+    def gradient_at_level(self, q, lam, level, h):
+        """grad U_mu (configuration index space) at a level: the pressures' forces there are -this."""
+        return self._grad(self.config(q, lam, level, h))
+
+    def add(self, pt, d, level):
+        if level != 0:
+            return
+        d.tube_q -= self.tube.level_weight * pt.h * (self.BqT @ self._grad(self.config(pt.q0, pt.lam, 0, pt.h)))
+        d.tube_lam -= pt.h * (self.BlT @ self._grad(self.config(pt.q1, pt.lam, 1, pt.h)))
+
+    def jacobian(self, pt):
+        Hn = self._hess(self.config(pt.q0, pt.lam, 0, pt.h))
+        H1 = self._hess(self.config(pt.q1, pt.lam, 1, pt.h))
+        Jql = -self.tube.level_weight * pt.h * (self.BqT @ Hn @ self.Bl)
+        Jlq = -pt.h * (self.BlT @ H1 @ self.Bq)
+        nq, nl = self.Bq.shape[1], self.Bl.shape[1]
+        J = sp.bmat([[sp.csr_matrix((nq, nq)), Jql], [Jlq, sp.csr_matrix((nl, nl))]]).tocsc()
+        if self.offset == 0 and J.shape == (self.nz, self.nz):
+            return J
+        J = J.tocoo()
+        return sp.csc_matrix((J.data, (J.row + self.offset, J.col + self.offset)), shape=(self.nz, self.nz))
+
+    def constant_diagonal_jacobian(self):
+        return False
 
 
 class ExtendedLattice:
@@ -429,3 +689,32 @@ class CoupledExtension:
         vals.append(np.ones(n_mu))
         shape = (o_e + n_lab + nR_ext + n_mu, o_r + n_lab + nR + n_mu)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
+
+
+def open_end_limits(model):
+    """What open ends cannot run with in this version (docs/theory.md §13.7), in one line naming the key, or None."""
+    t, sc = model.tube, model.scene
+    if t is None or not t.open_ends:
+        return None
+    if model.rod is not None and not t.open:
+        return ("fluid.ends: open ends on a [rod] (the coupled tube) run with an incompressible liquid in a rigid tube "
+                "(no [wall]) and a velocity inlet in this version")
+    if model.rod is not None and sc.fluid.initial:
+        return "fluid.initial: a non-uniform start with open ends on a [rod] is not available in this version"
+    if model.rod is not None and sc.fluid.ends.outflow != "pressure":
+        return ("fluid.ends.outflow: open ends on a [rod] run with a free jet (outflow = 'pressure') in this version")
+    if t.open and not t.coupled and t.outflow == "non-reflecting" and not math.isfinite(t.Z_out):
+        return ("fluid.ends.outflow: a non-reflecting outlet needs waves to let out; an incompressible liquid in a rigid "
+                "tube has none (add a [wall], or use 'pressure' or 'windkessel')")
+    if model.rod is not None and t.p_out != t.p_ext:
+        return ("fluid.ends.outflow_pressure: open ends on a [rod] run with a free jet (the outlet at "
+                "environment.external_pressure) in this version")
+    if t.has_wall and not t.wall_dynamic:
+        return ("fluid.ends: open ends with a quasistatic [wall] are not available in this version; a rigid tube or a "
+                "dynamic wall runs")
+    if t.gx != 0.0 and model.rod is None:
+        return ("environment.gravity: gravity along a straight tube with open ends is not available in this version "
+                "(on a [rod] it is)")
+    if sc.shock_capturing is not None:
+        return "shock_capturing: not available with open ends in this version"
+    return None

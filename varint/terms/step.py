@@ -240,16 +240,16 @@ class TubeMidpointPotential:
         return self.tube.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
 
     def value(self, pt):
-        return -pt.h * self.tube.potential(self.config(pt))
+        return -pt.h * self.tube.potential(self.config(pt), self.tube.midpoint_terms)
 
     def add(self, pt, d, level):
-        g = self.tube.gradient(self.config(pt))
+        g = self.tube.gradient(self.config(pt), self.tube.midpoint_terms)
         d.tube_q -= 0.5 * pt.h * (self.BqT @ g)
         if level == 0:
             d.tube_lam -= pt.h * (self.BlT @ g)
 
     def jacobian(self, pt):
-        H = self.tube.hessian(self.config(pt))
+        H = self.tube.hessian(self.config(pt), self.tube.midpoint_terms)
         C = sp.hstack([0.5 * self.Bq, self.Bl]).tocsr()
         return _embed(-pt.h * (C.T @ H @ C), self.offset, self.nz)
 

@@ -151,6 +151,14 @@ class TubePart:
         self.node_s = np.arange(nR) * self.ds
 
     @property
+    def midpoint_terms(self):
+        """The potential terms of the step's midpoint: all but a liquid held at the levels (the open straight tube's
+        incompressibility is the OpenLevelConstraint step term's, varint.terms.open_ends)."""
+        if getattr(self, "level_constraint", False) and self.open:
+            return [x for x in self.terms if x.name != "incompressibility"]
+        return self.terms
+
+    @property
     def unknown_names(self):
         return list(self.layout)
 
@@ -202,6 +210,24 @@ class TubePart:
             # for the end parcels' labels and the Catmull-Rom stencil around them
             self.ext = CoupledExtension(self.N, self.ds, int(math.ceil(2.0 * self.ell_in / self.ds)) + 2)
         self.V_in = self.duct.A_in * self.ell_in
+        #: the volume flux of a velocity inlet through the inlet section: the piston moves so that it sweeps Q_in per
+        #: unit time wherever it is, F(s_0^{n+1}) = F(s_0^n) + h Q_in (docs/theory.md §13.8)
+        self.Q_in = self.U_in * self.duct.A_in
+        #: the piston's velocity over the last step (the released piston keeps it; t = 0: the inlet's)
+        self.piston_velocity = self.U_in
+        #: an incompressible liquid on the straight tube is held at the levels (SHAKE; varint.terms.open_ends
+        #: OpenLevelConstraint, docs/theory.md §13.8): its pressures act at level n, the end forces with them
+        self.level_constraint = self.incompressible and not self.coupled
+        #: the share of level n's impulses that a step takes: 1/2 in the first step (OpenLevelConstraint), else 1
+        self.level_weight = 1.0
+        # the outlet (docs/theory.md §13.9): a pressure, a non-reflecting (characteristic) impedance, or an R-C-R windkessel
+        self.outflow = getattr(e, "outflow", "pressure") or "pressure"
+        self.u_ref = float(sc.fluid.velocity)
+        self.Z_out = self._characteristic_impedance()
+        self.windkessel = (None if self.outflow != "windkessel" else
+                           (float(e.windkessel_R1), float(e.windkessel_C), float(e.windkessel_R2)))
+        #: the windkessel's capacitor pressure (state data); t = 0: the fluid's pressure
+        self.p_c = float(sc.fluid.pressure) if sc.fluid.pressure is not None else self.p_ext
         self.m_in = rho_in * self.V_in
         self.S_in = float(self.eos.entropy(rho_in, self.p_in)) if self.eos is not None and self.eos.has_entropy else 0.0
         self.rho0 = sc.fluid.density
@@ -214,6 +240,10 @@ class TubePart:
         self.m = f.density(centres) * V
         self.S = f.entropy(centres)
         u = f.velocity(s)
+        if self.incompressible and not self.coupled and not self.duct.uniform:
+            # a liquid in a duct of varying section: the only velocities its volumes allow carry one volume flux,
+            # u(s) A(s) = u A(0) (a uniform u would be projected by the first step: docs/theory.md §13.8)
+            u = u * self.duct.A_in / self.duct.A(s)
         self.piston = float(s[0])  #: the prescribed first label's position at the level (velocity inlet)
         #: the ends' rule (docs/theory.md §13.2-13.3): a rigid tube holds the parcels whose centres are in it; a dynamic
         #: wall's is kept full (the first label at or before s = 0, the last at or beyond L: no wall without fluid)
@@ -236,6 +266,31 @@ class TubePart:
         if self.coupled:
             self.lam_init = self.lam_init - self.p_ext
             self.p_init = np.zeros_like(self.q_init)  # the Legendre map of the coupled tube (varint.model.model)
+
+    def _characteristic_impedance(self):
+        """rho c of the scene's fluid state at the outlet, c the long-wave speed with the wall's compliance,
+        1/c^2 = 1/c0^2 + (rho/A) dA/dp (docs/theory.md §6 at k -> 0): 4 pi rho / beta2 for the linear wall, 2 rho / beta
+        for the tube law; inf for a liquid in a rigid tube (no waves)."""
+        sc = self.scene
+        rho = float(sc.fluid.density)
+        inv_c2 = 0.0
+        if self.eos is not None:
+            S = self.eos.entropy(rho, sc.fluid.pressure) if self.eos.has_entropy else None
+            inv_c2 = 1.0 / float(self.eos.sound_speed(rho, S)) ** 2
+        if self.has_wall:
+            w = self.wall
+            inv_c2 += 4.0 * math.pi * rho / w.beta2 if w.law == "linear" else 2.0 * rho / w.stiffness
+        return rho / math.sqrt(inv_c2) if inv_c2 > 0.0 else math.inf
+
+    def piston_after(self, h):
+        """The velocity inlet's piston one step of ``h`` after its level position: it sweeps the volume h Q_in of the
+        duct (docs/theory.md §13.8; in the inlet's section, where a dynamic wall's tube keeps it, U_in h)."""
+        if self.filled or self.duct.uniform or self.coupled:
+            return self.piston + h * self.U_in
+        key = (self.piston, h)
+        if getattr(self, "_piston_after", (None, None))[0] != key:
+            self._piston_after = (key, float(self.duct.above(self.piston, h * self.Q_in)))
+        return self._piston_after[1]
 
     def coupled_rebase(self, V):
         """The coupled tube's parcels at t = 0 hold their stretched volumes ``V`` on the rod's initial centreline (so the
@@ -333,8 +388,11 @@ class TubePart:
         mask) and the accumulated ``balance`` (docs/theory.md §13.4-13.5): what a resumed run rebuilds from.
         """
         if self.open:
-            return {"m": self.m.copy(), "S": self.S.copy(), "piston": np.array([self.piston]),
-                    "balance": self.balance.copy(), "active": self.active_mask().astype(float)}
+            d = {"m": self.m.copy(), "S": self.S.copy(), "piston": np.array([self.piston]),
+                 "balance": self.balance.copy(), "active": self.active_mask().astype(float)}
+            if not self.coupled:
+                d["inlet_outlet"] = np.array([self.piston_velocity, self.p_c])
+            return d
         return {"S": self.S.copy()} if self.shock_capturing is not None else {}
 
     def set_evolving_data(self, data):
@@ -345,6 +403,8 @@ class TubePart:
             m, S = np.asarray(data["m"], dtype=float), np.asarray(data["S"], dtype=float)
             self.piston = float(data["piston"][0])
             self.balance = np.array(data["balance"], dtype=float)
+            if "inlet_outlet" in data:
+                self.piston_velocity, self.p_c = (float(x) for x in data["inlet_outlet"])
             if len(m) != len(self.m) or np.any(m != self.m) or np.any(S != self.S):
                 self.m, self.S = m.copy(), S.copy()
                 self._open_build()
@@ -504,13 +564,13 @@ class TubePart:
         bad = self.label_problem(cfg) is not None
         return {t.name: (math.nan if bad else t.energy(cfg, cache)) for t in self.terms if t.name != "incompressibility"}
 
-    def potential(self, cfg):
+    def potential(self, cfg, terms=None):
         if self.label_problem(cfg) is not None:
             return math.nan
         cache = {}
-        return sum(t.energy(cfg, cache) for t in self.terms)
+        return sum(t.energy(cfg, cache) for t in (self.terms if terms is None else terms))
 
-    def gradient(self, cfg):
+    def gradient(self, cfg, terms=None):
         """Gradient of the potential in configuration index space.
 
         All NaN when the labels fold or leave the tube: a Newton iterate there has a non-finite
@@ -522,16 +582,16 @@ class TubePart:
         gR = np.zeros(self.nR)
         gmu = np.zeros(self.M if self.incompressible else 0)
         cache = {}
-        for t in self.terms:
+        for t in (self.terms if terms is None else terms):
             t.gradient(cfg, cache, gs, gR, gmu)
         return np.concatenate([gs, gR, gmu])
 
-    def hessian(self, cfg):
+    def hessian(self, cfg, terms=None):
         """Hessian of the potential in configuration index space (CSR); NaN on the diagonal when the labels are invalid."""
         if self.label_problem(cfg) is not None:
             return sp.diags(np.full(self.nconfig, np.nan)).tocsr()
         cache = {}
-        parts = [t.hessian(cfg, cache, self.index) for t in self.terms]
+        parts = [t.hessian(cfg, cache, self.index) for t in (self.terms if terms is None else terms)]
         r = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
         c = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, np.int64)
         v = np.concatenate([p[2] for p in parts]) if parts else np.empty(0)
