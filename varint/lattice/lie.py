@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["hat", "vee", "cay", "cay_inv", "dcay", "dcay_inv", "half", "cay_batch", "cay_inv_batch",
-           "orthogonality_error"]
+           "orthogonality_error", "k_hat"]
 
 
 def _arr(x):
@@ -82,6 +82,15 @@ def orthogonality_error(L):
 
 # ---------------------------------------------------------------------------
 # numba kernels (batched, write into preallocated outputs)
+
+
+@njit(cache=True, inline="always")
+def k_hat(w, c, out):
+    """out = c hat(w) for one vector w (3,) into out (3, 3): :func:`hat` of the compiled kernels (any scalar type:
+    real, or complex for complex steps)."""
+    out[0, 0] = out[1, 1] = out[2, 2] = 0.0
+    out[0, 1], out[0, 2], out[1, 2] = -c * w[2], c * w[1], -c * w[0]
+    out[1, 0], out[2, 0], out[2, 1] = c * w[2], -c * w[1], c * w[0]
 
 
 @njit(cache=True)

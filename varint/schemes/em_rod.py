@@ -42,9 +42,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import SolverError
-from ..terms.rod import origin_shift
+from ..lattice.lie import hat
+from ..terms.rod import CHI, origin_shift
 
-CHI = np.array([1.0, 0.0, 0.0])
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 NV = 18  # unknowns per node: r (3), D (9, row-major Lambda), lambda (6)
 NC = 3  # with rod.constraint: the element forces mu_e (Gamma_e = chi), kept in the block of the element's first node
@@ -67,10 +67,8 @@ def _axial(S):
     return np.stack([S[..., 2, 1] - S[..., 1, 2], S[..., 0, 2] - S[..., 2, 0], S[..., 1, 0] - S[..., 0, 1]], axis=-1)
 
 
-def _hat(a):
-    z = np.zeros_like(a[..., 0])
-    return np.stack([np.stack([z, -a[..., 2], a[..., 1]], -1), np.stack([a[..., 2], z, -a[..., 0]], -1),
-                     np.stack([-a[..., 1], a[..., 0], z], -1)], axis=-2)
+#: varint.lattice.lie.hat under the name the step classes' constructors (here and in em_tube) read
+_hat = hat
 
 
 def _T(A):
@@ -125,7 +123,7 @@ def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, mu=None):
     cc = c0 * c1
     alpha = 2.0 * (0.5 * (c0 + c1))[..., None] * m / cc[..., None]
     beta = -2.0 * np.sum(0.5 * (a0 + a1) * m, -1) / cc
-    Phi = _hat(alpha) + beta[..., None, None] * np.eye(3)  # d(alpha.a + beta c)/dR
+    Phi = hat(alpha) + beta[..., None, None] * np.eye(3)  # d(alpha.a + beta c)/dR
     FD[..., :-1, :, :] += Db[..., 1:, :, :] @ _T(Phi)
     FD[..., 1:, :, :] += Db[..., :-1, :, :] @ Phi
     return Fr, FD
@@ -152,8 +150,8 @@ def rigid_correction(h, P, J, m, x, E, Db):
     Ilock += eye * np.trace(Id) - Id
     A = np.zeros((6, 6))
     A[:3, :3] = m.sum() * eye
-    A[:3, 3:] = -_hat(S)
-    A[3:, :3] = _hat(S)
+    A[:3, 3:] = -hat(S)
+    A[3:, :3] = hat(S)
     A[3:, 3:] = Ilock
     aw = np.linalg.solve(A, -(0.5 * h) * np.concatenate([P, J]))
     return aw[:3], aw[3:]

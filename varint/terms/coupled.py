@@ -619,6 +619,7 @@ def _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, ne
 from numba import njit  # noqa: E402
 
 from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
+from ..lattice.lie import k_hat  # noqa: E402
 
 _EPS = np.finfo(float).eps
 
@@ -955,14 +956,6 @@ def _mm3(A, B, sign, out, col):
 
 
 @njit(cache=True)
-def _hat3(p, c, out):
-    """out = c hat(p)."""
-    out[0, 0] = out[1, 1] = out[2, 2] = 0.0
-    out[0, 1], out[0, 2], out[1, 2] = -c * p[2], c * p[1], -c * p[0]
-    out[1, 0], out[2, 0], out[2, 1] = c * p[2], -c * p[1], c * p[0]
-
-
-@njit(cache=True)
 def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1,
                         Gn, ghat, dU_dG, index, gV, HV, c1, c2, p_ext, g, mbar, grav):
     """The potential's Newton block (see the section notes) as COO (rows, cols, vals).
@@ -1075,15 +1068,15 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         # A^n_e with its translational columns rotated by Lambda^n (rows of D1 in the level-n body frame)
         _mm3(LT0, Lam0[a], -1.0, A0, 0)
         _mm3(LT0, Lam0[b], 1.0, A0, 6)
-        _hat3(pa0[e], 0.5 / ds, ha)
-        _hat3(pb0[e], 0.5 / ds, hb)
+        k_hat(pa0[e], 0.5 / ds, ha)
+        k_hat(pb0[e], 0.5 / ds, hb)
         A0[:, 3:6] = ha
         A0[:, 9:12] = hb
         # A^{n+1}_e B_e: translations b -> Lambda^n b, rotations xi -> sigma = dcay(-xi) dxi
         _mm3(LT1, Lam0[a], -1.0, C, 0)
         _mm3(LT1, Lam0[b], 1.0, C, 6)
-        _hat3(pa1[e], 0.5 / ds, ha)
-        _hat3(pb1[e], 0.5 / ds, hb)
+        k_hat(pa1[e], 0.5 / ds, ha)
+        k_hat(pb1[e], 0.5 / ds, hb)
         _mm3(ha, Dc[a], 1.0, C, 3)
         _mm3(hb, Dc[b], 1.0, C, 9)
         w = dU_dG[e] / Gn[e]

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..lattice.lie import hat
+
 __all__ = ["Declaration", "TipTorque", "derive_invariants", "BASE_INVARIANTS"]
 
 #: what a closed mechanical system without external fields keeps
@@ -116,8 +118,7 @@ class TipTorque(Force):
 
     def stiffness_block(self, Lam):
         """d(generalised force at the tip)/d sigma_N under Lambda_N -> Lambda_N cay(sigma): hat(Lambda_N^T T)."""
-        v = self.body(Lam)
-        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+        return hat(self.body(Lam))
 
     def work(self, h, Lam_n, Lam_1, xi):
         """Work over a step, (f^- + f^+) . xi_N / h: the mean body torque times the tip's rotation

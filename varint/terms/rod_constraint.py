@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .rod import k_body_rows, k_cay, k_chart_column, _k_config_column, _k_mm
+from .rod import CHI, k_body_rows, k_cay, k_chart_column, _k_config_column, _k_mm
 
 __all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -239,7 +239,7 @@ def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30, a
 def element_strain_residual(rod, Lam, r):
     """max |Gamma_e - chi| over the elements at one level (the constraint's monitor; strains of RodPart.strains)."""
     _, Ga = rod.strains(Lam, r)
-    return float(np.max(np.abs(Ga - np.array([1.0, 0.0, 0.0])))) if len(Ga) else 0.0
+    return float(np.max(np.abs(Ga - CHI))) if len(Ga) else 0.0
 
 
 def constraint_jacobian(Lam, r, ds, ncomp, mask):
@@ -313,7 +313,7 @@ def constraint_static(rod, Lam, r, lam):
     stiffness of the internal forces lam."""
     N, ncomp, mask = rod.N, rod.ncomp, rod.mask
     _, Ga = rod.strains(Lam, r)
-    c = (Ga - np.array([1.0, 0.0, 0.0]))[:, :ncomp].ravel()
+    c = (Ga - CHI)[:, :ncomp].ravel()
     G = constraint_jacobian(Lam, r, rod.ds, ncomp, mask)
     _, D1, D2, _ = constraint_step(1.0, rod.ds, Lam, r, Lam, r, lam, ncomp, (0, 2))
     F = (D1 + D2)[mask]
