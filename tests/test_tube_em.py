@@ -264,26 +264,38 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
         assert np.abs(cs - fd).max() < 1e-6 * np.abs(fd).max(), (k, cs, fd)
 
 
-def test_the_compiled_rod_discrete_gradient_is_rod_em_s():
-    """varint.schemes.em_tube_kernels.rod_discrete_gradient against varint.schemes.em_rod.discrete_gradient with a stress, on random
-    directors (not orthonormal) and a complex batch."""
-    from varint.schemes.em_rod import discrete_gradient
-    from varint.schemes.em_tube_kernels import rod_discrete_gradient
+def test_the_compiled_rod_discrete_gradient_with_a_stress_on_a_complex_batch():
+    """varint.schemes.em_rod.rod_discrete_gradient (the one discrete gradient of the rod: discrete_gradient, the rod's and
+    the coupled tube's residuals) with a stress, on random directors (not orthonormal) and a complex batch: each row is
+    the row alone, a complex step is the central difference of the real kernel, and the stress does the work
+    ds sum_e stress_e . (Gamma_e(q_1) - Gamma_e(q_0)) on the increment (Gamma is bilinear: exact)."""
+    from varint.schemes.em_rod import discrete_gradient, rod_discrete_gradient, strains
 
     rng = np.random.default_rng(7)
     N, ds = 5, 0.2
     Jd, Kd = np.array([0.8, 1.0, 1.2]), np.array([100.0, 60.0, 70.0])
     r0 = np.cumsum(rng.normal(size=(N + 1, 3)) * 0.05 + [ds, 0, 0], 0)
     D0 = np.eye(3) + 0.2 * rng.normal(size=(N + 1, 3, 3))
-    r1 = r0 + 0.01 * rng.normal(size=(2, N + 1, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3))
-    D1 = D0 + 0.1 * rng.normal(size=(2, N + 1, 3, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3, 3))
+    dr, dD = 0.01 * rng.normal(size=(2, N + 1, 3)), 0.1 * rng.normal(size=(2, N + 1, 3, 3))
+    er, eD = rng.normal(size=(2, N + 1, 3)), rng.normal(size=(2, N + 1, 3, 3))
+    r1 = r0 + dr + 1e-30j * er
+    D1 = D0 + dD + 1e-30j * eD
     stress = rng.normal(size=(2, N, 3))
     Fr, FD = np.empty(r1.shape, complex), np.empty(D1.shape, complex)
-    rod_discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress, Fr, FD)
-    Fr_ref, FD_ref = discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress)
-    for a, b in ((Fr, Fr_ref), (FD, FD_ref)):
-        assert np.abs(a.real - b.real).max() < 1e-13 * np.abs(b.real).max()
-        assert np.abs(a.imag - b.imag).max() < 1e-12 * np.abs(b.imag).max()
+    rod_discrete_gradient(r0[None], D0[None], r1, D1, ds, Jd, Kd, stress, Fr, FD)
+    h = 1e-6
+    for b in range(2):
+        Fr_b, FD_b = discrete_gradient(r0, D0, r0 + dr[b], D0 + dD[b], ds, Jd, Kd, stress[b])
+        assert np.array_equal(Fr[b].real, Fr_b) and np.array_equal(FD[b].real, FD_b)
+        p = discrete_gradient(r0, D0, r0 + dr[b] + h * er[b], D0 + dD[b] + h * eD[b], ds, Jd, Kd, stress[b])
+        m = discrete_gradient(r0, D0, r0 + dr[b] - h * er[b], D0 + dD[b] - h * eD[b], ds, Jd, Kd, stress[b])
+        for cs, fp, fm in ((Fr[b].imag / 1e-30, p[0], m[0]), (FD[b].imag / 1e-30, p[1], m[1])):
+            assert np.abs(cs - (fp - fm) / (2 * h)).max() < 1e-6 * np.abs(cs).max()
+        # the stress's share of the forces does the work ds sum stress . dGamma
+        F0r, F0D = discrete_gradient(r0, D0, r0 + dr[b], D0 + dD[b], ds, Jd, Kd)
+        work = np.sum((Fr_b - F0r) * dr[b]) + np.sum((FD_b - F0D) * dD[b])
+        dG = strains(r0 + dr[b], D0 + dD[b], ds)[1] - strains(r0, D0, ds)[1]
+        assert work == pytest.approx(ds * np.sum(stress[b] * dG), rel=1e-13)
 
 
 def test_the_newton_jacobian_is_the_derivative_of_the_residual():

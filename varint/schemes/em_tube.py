@@ -38,9 +38,9 @@ refreshed when the contraction is slower than 1/2; the Jacobian by complex step 
 (the pattern by location from the stencils, :meth:`TubeEMStep._cliques`; ~110 batched residuals at 20 or 40
 elements with a liquid), each one checked against a random directional derivative in the same batch; a rigid
 correction of the solution zeroes the momentum balances.  The residual's three heavy parts (the fluid's pairs, the
-labels' constraint, the rod's discrete gradient) run as compiled loops (varint/schemes/em_tube_kernels.py) on real iterates
-and on the Jacobian's complex batches; the numpy code beside them is the reference (``compiled = False``), tested
-equal to round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
+labels' constraint, the rod's discrete gradient) run as compiled loops (varint/schemes/em_tube_kernels.py; the rod's
+discrete gradient is the rod's own, varint.schemes.em_rod.rod_discrete_gradient) on real iterates and on the Jacobian's
+complex batches; the numpy code beside the first two is the reference (``compiled = False``), tested equal to round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
 a Jacobian every 1-4 steps share the cost (docs/performance.md, "The coupled tube's energy-momentum step").
 """
 
@@ -53,7 +53,8 @@ import scipy.sparse.linalg as spla
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
 from ..terms.rod import origin_shift
-from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step, potential, rigid_correction, strains, tip_torque_forces)
+from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step,
+                     potential, rigid_correction, rod_discrete_gradient, strains, tip_torque_forces)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
@@ -691,7 +692,7 @@ class TubeEMStep:
         str_r = _batch_rows(stress, b, (self.N, 3), dt)
         B = r1r.shape[0]
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
-        kernels.rod_discrete_gradient(self.r, self.D, r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
+        rod_discrete_gradient(self.r[None], self.D[None], r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
         return Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3))
 
     def _label_constraint_compiled(self, nu, r1, D1, s1, X1, fr):

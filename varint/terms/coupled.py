@@ -67,6 +67,7 @@ import scipy.sparse as sp
 
 from ..lattice.centreline import centreline_and_weights, stretched_volume_derivatives
 from ..lattice.lie import cay_inv, dcay, hat
+from .rod import level_strains
 
 __all__ = ["fluid_kinetic_step", "LOCAL_SIZE", "FluidPotential", "LevelGradient", "StepTerm", "fluid_potential_step",
            "fluid_kinetic_chart", "newton_offsets", "stretch_map", "element_strains", "fluid_potential_static",
@@ -261,14 +262,10 @@ def _topology(n_nodes, periodic, ds, period):
 
 def element_strains(Lam, r, ds, periodic=False, period=None):
     """Gamma_e = (Lambda_a + Lambda_b)^T (r_b - r_a) / (2 ds) of every element (§9, §10.1), with the
-    body-frame chords p_a = Lambda_a^T (r_b - r_a), p_b = Lambda_b^T (r_b - r_a): ``(Gamma, p_a, p_b)``."""
-    Lam = np.asarray(Lam, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    ia, ib, shift = _topology(len(r), periodic, ds, period)
-    dr = r[ib] - r[ia] + shift
-    pa = np.einsum("eki,ek->ei", Lam[ia], dr)
-    pb = np.einsum("eki,ek->ei", Lam[ib], dr)
-    return 0.5 * (pa + pb) / ds, pa, pb
+    body-frame chords p_a = Lambda_a^T (r_b - r_a), p_b = Lambda_b^T (r_b - r_a): ``(Gamma, p_a, p_b)``
+    (varint.terms.rod.level_strains)."""
+    st = level_strains(np.asarray(Lam, dtype=np.float64), np.asarray(r, dtype=np.float64), ds, periodic, period)
+    return st.Gamma, st.pa, st.pb
 
 
 @lru_cache(maxsize=16)
@@ -620,6 +617,7 @@ from numba import njit  # noqa: E402
 
 from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
 from ..lattice.lie import k_hat  # noqa: E402
+from .rod import k_chords, k_gamma  # noqa: E402
 
 _EPS = np.finfo(float).eps
 
@@ -668,7 +666,7 @@ def _stretch_weight(j, n_nodes, periodic):
 
 @njit(cache=True)
 def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
-    """`element_strains` into pa, pb, G (n_el, 3)."""
+    """`element_strains` into pa, pb, G (n_el, 3) (the rod's kernels, varint.terms.rod.k_chords and k_gamma)."""
     n = r.shape[0]
     dr = np.empty(3)
     for e in range(pa.shape[0]):
@@ -677,15 +675,8 @@ def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
             dr[i] = r[b, i] - r[e, i]
             if periodic and e == pa.shape[0] - 1:
                 dr[i] += period[i]
-        for i in range(3):
-            xa = 0.0
-            xb = 0.0
-            for k in range(3):
-                xa += Lam[e, k, i] * dr[k]
-                xb += Lam[b, k, i] * dr[k]
-            pa[e, i] = xa
-            pb[e, i] = xb
-            G[e, i] = 0.5 * (xa + xb) / ds
+        k_chords(Lam[e], Lam[b], dr, pa[e], pb[e])
+        k_gamma(Lam[e], Lam[b], dr, ds, G[e])
 
 
 @njit(cache=True)

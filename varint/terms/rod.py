@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,7 +37,7 @@ from numba import njit
 
 from .forces import Declaration, TipTorque, derive_invariants
 from ..scene.initial import shape_profile
-from ..lattice.lie import cay, cay_inv
+from ..lattice.lie import cay, cay_inv, k_cay, k_cay_inv
 
 __all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
 
@@ -114,10 +115,6 @@ def rod_section(rod, inner_radius):
 
 def _T(A):
     return np.swapaxes(A, -1, -2)
-
-
-def _mv(A, v):
-    return np.einsum("...ij,...j->...i", A, v)
 
 
 class RodPart:
@@ -235,11 +232,10 @@ class RodPart:
     # -- discrete Lagrangian pieces ---------------------------------------------
 
     def strains(self, Lam, r):
-        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds."""
-        La, Lb = Lam[..., :-1, :, :], Lam[..., 1:, :, :]
-        Om = cay_inv(_T(La) @ Lb) / self.ds
-        Ga = _mv(_T(0.5 * (La + Lb)), r[..., 1:, :] - r[..., :-1, :]) / self.ds
-        return Om, Ga
+        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds
+        (:func:`level_strains`; leading batch axes, real or complex)."""
+        st = level_strains(Lam, r, self.ds)
+        return st.Omega, st.Gamma
 
     def lagrangian_pieces(self, h, Lam_n, r_n, xi, r_1, sig=None, dr=None, level=0):
         """Per-element discrete Lagrangian (B, N) and per-node extra pieces (B, N+1).
@@ -379,30 +375,30 @@ class RodPart:
             self._exact_consts = c
         return c
 
-    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2)):
+    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2), dr=None, elastic=True):
         """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
-        element gradients (``k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
-        range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros)."""
+        element gradients (``k_element`` summed by ``k_rod_gradient``; docs/theory.md §9), and the value of L_d.
+        ``levels``: the range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros).
+        ``dr``: the increments r_1 - r_n when the caller has them unrounded (the step's Lambda_n b), else formed here;
+        ``elastic=False``: the kinetic, weight and tip-force pieces only (the stiffnesses set to zero)."""
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
-        D1 = np.empty((self.N + 1, 6))
-        D2 = np.empty((self.N + 1, 6))
+        if not elastic:
+            J, K = np.zeros(3), np.zeros(3)
         f8 = np.float64
+        Lam_n, r_n, xi = (np.ascontiguousarray(x, dtype=f8) for x in (Lam_n, r_n, xi))
+        dr = np.ascontiguousarray(np.asarray(r_1, dtype=f8) - r_n if dr is None else dr, dtype=f8)
+        D1 = np.zeros((self.N + 1, 6))
+        D2 = np.zeros((self.N + 1, 6))
         try:
-            L = _k_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure,
-                            np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
-                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), levels[0], levels[1],
-                            D1, D2)
+            L = k_rod_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure, Lam_n, r_n, xi, dr,
+                               levels[0], levels[1], D1, D2, np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12),
+                               np.empty(12))
         except ZeroDivisionError:
             # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
             # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
-            D1[:] = np.nan
-            D2[:] = np.nan
+            D1[:] = np.nan if levels[0] == 0 else 0.0
+            D2[:] = np.nan if levels[1] == 2 else 0.0
             L = np.nan
-        # the kernel leaves a level it does not compute unwritten (scratch): return it as zeros, as documented
-        if levels[0] > 0:
-            D1[:] = 0.0
-        if levels[1] < 2:
-            D2[:] = 0.0
         return D1, D2, L
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
@@ -594,28 +590,6 @@ def origin_shift(x):
 
 
 @njit(cache=True, inline="always")
-def k_cay(w0, w1, w2, out):
-    c = 4.0 / (4.0 + w0 * w0 + w1 * w1 + w2 * w2)
-    out[0, 0] = 1.0 - 0.5 * c * (w1 * w1 + w2 * w2)
-    out[1, 1] = 1.0 - 0.5 * c * (w0 * w0 + w2 * w2)
-    out[2, 2] = 1.0 - 0.5 * c * (w0 * w0 + w1 * w1)
-    out[0, 1] = c * (-w2 + 0.5 * w0 * w1)
-    out[1, 0] = c * (w2 + 0.5 * w0 * w1)
-    out[0, 2] = c * (w1 + 0.5 * w0 * w2)
-    out[2, 0] = c * (-w1 + 0.5 * w0 * w2)
-    out[1, 2] = c * (-w0 + 0.5 * w1 * w2)
-    out[2, 1] = c * (w0 + 0.5 * w1 * w2)
-
-
-@njit(cache=True, inline="always")
-def _k_cay_inv(L, out):
-    f = 2.0 / (1.0 + L[0, 0] + L[1, 1] + L[2, 2])
-    out[0] = f * (L[2, 1] - L[1, 2])
-    out[1] = f * (L[0, 2] - L[2, 0])
-    out[2] = f * (L[1, 0] - L[0, 1])
-
-
-@njit(cache=True, inline="always")
 def _k_mm(A, B, out):
     for i in range(3):
         for j in range(3):
@@ -630,20 +604,117 @@ def _k_mtm(A, B, out):
             out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
 
 
+# ---------------------------------------------------------------------------
+# the strains of an element (docs/theory.md §9), the one place their formulas are written: every kernel of the rod
+# (the step's element kernel, the constraint's, the paper measure, the fluid's stretch, the energy-momentum step's
+# discrete gradient) and the NumPy functions (:func:`level_strains`) build on these.  Any scalar type (real, or
+# complex for complex steps).
+
+
+@njit(cache=True, inline="always")
+def k_body(L, d, i):
+    """Component i of L^T d: a spatial vector d in the body frame of L."""
+    return L[0, i] * d[0] + L[1, i] * d[1] + L[2, i] * d[2]
+
+
+@njit(cache=True, inline="always")
+def k_chords(La, Lb, d, pa, pb):
+    """The element's chord d = r_b - r_a in the body frames of its two nodes: pa = La^T d, pb = Lb^T d."""
+    for i in range(3):
+        pa[i] = k_body(La, d, i)
+        pb[i] = k_body(Lb, d, i)
+
+
+@njit(cache=True, inline="always")
+def k_gamma(La, Lb, d, ds, G):
+    """Gamma = (La + Lb)^T d / (2 ds) (= (pa + pb) / (2 ds)) of an element at one level, d = r_b - r_a, into G."""
+    for i in range(3):
+        G[i] = 0.5 * ((La[0, i] + Lb[0, i]) * d[0] + (La[1, i] + Lb[1, i]) * d[1] + (La[2, i] + Lb[2, i]) * d[2]) / ds
+
+
+@njit(cache=True, inline="always")
+def k_gamma_mid(pa0_i, pb0_i, pa1_i, pb1_i, ds):
+    """Component i of the strain midpoint Gammabar = (Gamma^n + Gamma^{n+1}) / 2 from both levels' chords."""
+    return 0.25 * (pa0_i + pb0_i + pa1_i + pb1_i) / ds
+
+
+@njit(cache=True, inline="always")
+def k_turn(La, Lb, T, a, om):
+    """The element's relative rotation T = La^T Lb and om = cay^-1(T) = ds Omega (its curvature times ds), with ``a``
+    the axial vector of T - T^T (unhalved; may be ``om``); returns c = 1 + tr T (om = 2 a / c)."""
+    _k_mtm(La, Lb, T)
+    return k_cay_inv(T, a, om)
+
+
+@njit(cache=True, inline="always")
+def k_element_strains(La, Lb, d, ds, T, pa, pb, G, a, om):
+    """An element's strains at one level: chords pa, pb (:func:`k_chords`), Gamma into G (:func:`k_gamma`), om = ds
+    Omega and a (:func:`k_turn`); returns c = 1 + tr(La^T Lb)."""
+    k_chords(La, Lb, d, pa, pb)
+    k_gamma(La, Lb, d, ds, G)
+    return k_turn(La, Lb, T, a, om)
+
+
+@njit(cache=True, inline="always")
+def k_strains_row(Lam, r, ds, periodic, period, Om, Ga, pa, pb, a, c, T, d, om):
+    """:func:`k_element_strains` of every element of a lattice: Lam (n, 3, 3), r (n, 3); elements (e, e + 1), and on a
+    periodic lattice of n distinct nodes also (n - 1, 0) with the period (3,) added to its chord.  Writes Om (=
+    Omega), Ga, pa, pb, a (n_el, 3) and c (n_el,); T (3, 3), d, om (3): scratch."""
+    n = r.shape[0]
+    for e in range(Om.shape[0]):
+        f = (e + 1) % n
+        for i in range(3):
+            d[i] = r[f, i] - r[e, i]
+            if periodic and e == n - 1:
+                d[i] += period[i]
+        c[e] = k_element_strains(Lam[e], Lam[f], d, ds, T, pa[e], pb[e], Ga[e], a[e], om)
+        for i in range(3):
+            Om[e, i] = om[i] / ds
+
+
 @njit(cache=True)
-def _k_strains(Lam, r, ds, Om, Ga):
-    N = Lam.shape[0] - 1
-    T = np.empty((3, 3), dtype=np.complex128)
-    for e in range(N):
-        _k_mtm(Lam[e], Lam[e + 1], T)
-        _k_cay_inv(T, Om[e])
-        for i in range(3):
-            Om[e, i] /= ds
-        for i in range(3):
-            s = 0.0 + 0.0j
-            for k in range(3):
-                s += 0.5 * (Lam[e, k, i] + Lam[e + 1, k, i]) * (r[e + 1, k] - r[e, k])
-            Ga[e, i] = s / ds
+def k_strains_rows(Lam, r, ds, periodic, period, Om, Ga, pa, pb, a, c):
+    """:func:`k_strains_row` of each row b of a batch: Lam (B, n, 3, 3), r (B, n, 3) -> Om, Ga, pa, pb, a (B, n_el, 3),
+    c (B, n_el)."""
+    T = np.empty((3, 3), Om.dtype)
+    d = np.empty(3, Om.dtype)
+    om = np.empty(3, Om.dtype)
+    for b in range(r.shape[0]):
+        k_strains_row(Lam[b], r[b], ds, periodic, period, Om[b], Ga[b], pa[b], pb[b], a[b], c[b], T, d, om)
+
+
+class Strains(NamedTuple):
+    """The strains of every element at one level (:func:`level_strains`): Omega = cay^-1(La^T Lb) / ds, Gamma =
+    (La + Lb)^T (r_b - r_a) / (2 ds), the chords pa = La^T (r_b - r_a), pb = Lb^T (r_b - r_a), and a, c with
+    ds Omega = 2 a / c (a the axial vector of La^T Lb - Lb^T La, c = 1 + tr La^T Lb)."""
+
+    Omega: np.ndarray
+    Gamma: np.ndarray
+    pa: np.ndarray
+    pb: np.ndarray
+    a: np.ndarray
+    c: np.ndarray
+
+
+def level_strains(Lam, r, ds, periodic=False, period=None):
+    """:class:`Strains` of the elements of frames (or directors: any 3 x 3 matrices) ``Lam`` (..., n, 3, 3) and positions
+    ``r`` (..., n, 3), leading batch axes broadcast, real or complex (through :func:`k_strains_rows`).  Elements
+    (j, j + 1); ``periodic``: n distinct nodes and a closing element (n - 1, 0) whose chord adds ``period`` (default
+    n ds E_1)."""
+    Lam, r = np.asarray(Lam), np.asarray(r)
+    dt = np.result_type(Lam, r, np.float64)
+    batch = np.broadcast_shapes(Lam.shape[:-3], r.shape[:-2])
+    n = r.shape[-2]
+    n_el = n if periodic else n - 1
+    L2 = np.ascontiguousarray(np.broadcast_to(Lam, batch + (n, 3, 3)), dtype=dt).reshape(-1, n, 3, 3)
+    r2 = np.ascontiguousarray(np.broadcast_to(r, batch + (n, 3)), dtype=dt).reshape(-1, n, 3)
+    B = r2.shape[0]
+    d = np.array([n * ds, 0.0, 0.0]) if period is None else np.asarray(period, dtype=np.float64).reshape(3)
+    Om, Ga, pa, pb, a = (np.empty((B, n_el, 3), dt) for _ in range(5))
+    c = np.empty((B, n_el), dt)
+    k_strains_rows(L2, r2, float(ds), bool(periodic), d.astype(dt), Om, Ga, pa, pb, a, c)
+    v3 = batch + (n_el, 3)
+    return Strains(Om.reshape(v3), Ga.reshape(v3), pa.reshape(v3), pb.reshape(v3), a.reshape(v3), c.reshape(batch + (n_el,)))
 
 
 @njit(cache=True)
@@ -676,6 +747,10 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
     Ga0 = np.empty((N, 3), dtype=np.complex128)
     Om1 = np.empty((N, 3), dtype=np.complex128)
     Ga1 = np.empty((N, 3), dtype=np.complex128)
+    # scratch of k_strains_row (chords, axial vectors, c; a vector and om)
+    spa, spb, sa = np.empty((N, 3), np.complex128), np.empty((N, 3), np.complex128), np.empty((N, 3), np.complex128)
+    sc, sd, som = np.empty(N, np.complex128), np.empty(3, np.complex128), np.empty(3, np.complex128)
+    per = np.zeros(3)
     # the unperturbed level and cay(xi) are the same for every batch: compute them once
     Cxs = np.empty((N + 1, 3, 3), dtype=np.complex128)
     for j in range(N + 1):
@@ -690,9 +765,9 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
                 for m in range(3):
                     Ln[j, i, m] = Lam_n[j, i, m]
     if level == 0:
-        _k_strains(L1, r1, ds, Om1, Ga1)
+        k_strains_row(L1, r1, ds, False, per, Om1, Ga1, spa, spb, sa, sc, T, sd, som)
     else:
-        _k_strains(Ln, rn, ds, Om0, Ga0)
+        k_strains_row(Ln, rn, ds, False, per, Om0, Ga0, spa, spb, sa, sc, T, sd, som)
     for b in range(B):
         for j in range(N + 1):
             Cx = Cxs[j]
@@ -700,14 +775,14 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
             if level == 0:
                 _k_mm(Lam_n[j], C, Ln[j])
                 _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
-                _k_cay_inv(T, xp[j])
+                k_cay_inv(T, xp[j], xp[j])
                 for i in range(3):
                     rn[j, i] = r_n[j, i] + dr[b, j, i]
             else:
                 _k_mm(Lam_n[j], Cx, T)
                 _k_mm(T, C, L1[j])
                 _k_mm(Cx, C, T)
-                _k_cay_inv(T, xp[j])
+                k_cay_inv(T, xp[j], xp[j])
                 for i in range(3):
                     r1[j, i] = r_1[j, i] + dr[b, j, i]
             kv = 0.0 + 0.0j
@@ -718,9 +793,9 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
                 kw += inertia[i] * xp[j, i] * xp[j, i]
             k[j] = 0.5 * rhoA * kv + 0.5 * kw / (h * h)
         if level == 0:
-            _k_strains(Ln, rn, ds, Om0, Ga0)
+            k_strains_row(Ln, rn, ds, False, per, Om0, Ga0, spa, spb, sa, sc, T, sd, som)
         else:
-            _k_strains(L1, r1, ds, Om1, Ga1)
+            k_strains_row(L1, r1, ds, False, per, Om1, Ga1, spa, spb, sa, sc, T, sd, som)
         for e in range(N):
             W = 0.0 + 0.0j
             gg = 0.0 + 0.0j
@@ -728,7 +803,7 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
             for i in range(3):
                 om = 0.5 * (Om0[e, i] + Om1[e, i])
                 ga = 0.5 * (Ga0[e, i] + Ga1[e, i])
-                dg = ga - (1.0 if i == 0 else 0.0)
+                dg = ga - CHI[i]
                 W += 0.5 * Jd[i] * om * om + 0.5 * Kd[i] * dg * dg
                 gg += ga * ga
                 grav += g[i] * 0.5 * (rn[e, i] + r1[e, i] + rn[e + 1, i] + r1[e + 1, i]) * 0.5
@@ -762,12 +837,16 @@ def _k_dcinvT(w, v, s, out):
 
 
 @njit(cache=True, inline="always")
-def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
-    """Discrete Lagrangian of one element (returned) and its exact gradients.
+def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, g0, lev_lo, lev_hi, D1, D2,
+              M, V):
+    """Discrete Lagrangian of one element and its exact gradients; returns (L_e, c), c = h ds mu_e the element's factor.
 
     ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
     of level n+1 (level n held), layout [dr_a, sigma_a, dr_b, sigma_b].  The level n+1 frames are
     L0 cay(xi).  Only levels lev_lo <= level < lev_hi are computed ((0, 1): D1 only; (1, 2): D2 only).
+    ``g0`` = g . o when the four positions are given relative to a point o (0 for absolute positions): the weight's
+    potential rhoA g . rm reads the absolute positions, and with the paper's measure its gradient does too (through
+    mu, which weights it), so the element's value and gradients are those of the absolute positions in either case.
     All arrays share one scalar type (float64, or complex128 for complex steps);
     ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
     """
@@ -778,18 +857,13 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     _k_mm(L0b, Cb, L1b)
     om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
     Gb, Ob, gG, gw, tmp, Ixa, Ixb = V[8], V[9], V[10], V[11], V[12], V[13], V[14]
-    _k_mtm(L0a, L0b, T)
-    _k_cay_inv(T, om0)
-    _k_mtm(L1a, L1b, T)
-    _k_cay_inv(T, om1)
+    k_turn(L0a, L0b, T, om0, om0)
+    k_turn(L1a, L1b, T, om1, om1)
     for i in range(3):
         dr0[i] = r0b[i] - r0a[i]
         dr1[i] = r1b[i] - r1a[i]
-    for i in range(3):
-        pa0[i] = L0a[0, i] * dr0[0] + L0a[1, i] * dr0[1] + L0a[2, i] * dr0[2]
-        pb0[i] = L0b[0, i] * dr0[0] + L0b[1, i] * dr0[1] + L0b[2, i] * dr0[2]
-        pa1[i] = L1a[0, i] * dr1[0] + L1a[1, i] * dr1[1] + L1a[2, i] * dr1[2]
-        pb1[i] = L1b[0, i] * dr1[0] + L1b[1, i] * dr1[1] + L1b[2, i] * dr1[2]
+    k_chords(L0a, L0b, dr0, pa0, pb0)
+    k_chords(L1a, L1b, dr1, pa1, pb1)
     Gb[0] = 0.0  # (scratch is uninitialised: a zero of the scalar type)
     W = Gb[0]
     gg = Gb[0]
@@ -798,9 +872,9 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     kb = Gb[0]
     ih2 = 1.0 / (h * h)
     for i in range(3):
-        Gb[i] = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
+        Gb[i] = k_gamma_mid(pa0[i], pb0[i], pa1[i], pb1[i], ds)
         Ob[i] = 0.5 * (om0[i] + om1[i]) / ds
-        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        dg = Gb[i] - CHI[i]
         W += 0.5 * Jd[i] * Ob[i] * Ob[i] + 0.5 * Kd[i] * dg * dg
         gg += Gb[i] * Gb[i]
         grav += g[i] * 0.25 * (r0a[i] + r1a[i] + r0b[i] + r1b[i])
@@ -810,7 +884,7 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         Ixb[i] = inertia[i] * xib[i]
         ka += 0.5 * (rhoA * va * va + Ixa[i] * xia[i]) * ih2
         kb += 0.5 * (rhoA * vb * vb + Ixb[i] * xib[i]) * ih2
-    P = 0.5 * (ka + kb) - W + rhoA * grav
+    P = 0.5 * (ka + kb) - W + rhoA * (grav + g0)
     if paper:
         mu = np.sqrt(gg)
     else:
@@ -818,7 +892,7 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     c = h * ds * mu
     # gradients of E = h ds mu P with respect to each level's strains (the same for both levels)
     for i in range(3):
-        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        dg = Gb[i] - CHI[i]
         gG[i] = -0.5 * c * Kd[i] * dg
         if paper:
             gG[i] += h * ds * P * 0.5 * Gb[i] / mu
@@ -853,32 +927,64 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         _k_dcinvT(xib, Ixb, -sgn, tmp)
         for i in range(3):
             D[9 + i] += sgn * 0.5 * c * ih2 * tmp[i]
-    return c * P
+    return c * P, c
 
 
-@njit(cache=True)
-def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev_lo, lev_hi, D1, D2):
-    """Sum of the element gradients (and the tip force's node piece) into D1, D2 (N+1, 6); returns L_d."""
+@njit(cache=True, inline="always")
+def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2, M, V, e1, e2):
+    """The rod's D1 (level n) and D2 (level n+1) of L_d, (N+1, 6) each: the element kernels (:func:`k_element`) summed,
+    and the tip force's node piece; returns the value L_d.  Only the levels lev_lo <= level < lev_hi are written
+    ((0, 1): D1 alone, (1, 2): D2 alone; D1 and D2 may then be one array).  The one sum of the rod's element gradients:
+    RodPart.gradients, the stepper's rod term (varint.terms.step) and the compiled rod step (varint.schemes.rod_compiled).
+
+    ``dr``: the increments r^{n+1} - r^n (Lambda^n b in the step's chart).  Each element is evaluated in coordinates
+    centred on its first node: r_a^n = 0, r_b^n = r_b^n - r_a^n, r_a^{n+1} = dr_a, r_b^{n+1} = (r_b^n - r_a^n) + dr_b
+    (docs/theory.md §9, "Momenta to round-off": the gradients depend on positions only through differences; the
+    velocities are then the increments themselves, not differences of positions rounded to eps |r|, and Newton can
+    meet the momentum balances below that quantum).  The kernel forms node b's velocity as (r_b^{n+1} - r_b^n), which
+    rounds it to eps ds; its rounding error delta = dr_b - ((r_b^n - r_a^n + dr_b) - (r_b^n - r_a^n)) is exact in
+    floating point, and node b's kinetic rows get c rhoA delta / (2 h^2) (signed as the kernel's), so both nodes' kinetic
+    rows read their exact increments.  The weight reads the absolute positions (the paper's measure weights it, so its
+    gradient does too): the element kernel takes g . r_a^n with the centred positions (k_element's ``g0``), and the
+    value and gradients are those of the absolute positions, for either measure.  Scratch: M (5, 3, 3), V (20, 3) (the element kernel's rows 0-15, the element's
+    positions 16-19), e1, e2 (12)."""
     N = Lam_n.shape[0] - 1
-    M = np.empty((5, 3, 3), Lam_n.dtype)
-    V = np.empty((16, 3), Lam_n.dtype)
-    e1 = np.empty(12, Lam_n.dtype)
-    e2 = np.empty(12, Lam_n.dtype)
-    D1[:] = 0.0
-    D2[:] = 0.0
+    ih2 = 1.0 / (h * h)
+    for j in range(N + 1):
+        for i in range(6):
+            if lev_lo == 0:
+                D1[j, i] = 0.0
+            if lev_hi == 2:
+                D2[j, i] = 0.0
+    za, rb0, rb1, dlt = V[16], V[17], V[18], V[19]
     L = 0.0
     for e in range(N):
-        L += k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
-                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev_lo, lev_hi, e1, e2, M, V)
+        for i in range(3):
+            za[i] = 0.0
+            rb0[i] = r_n[e + 1, i] - r_n[e, i]
+            rb1[i] = rb0[i] + dr[e + 1, i]
+            dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
+        g0 = g[0] * r_n[e, 0] + g[1] * r_n[e, 1] + g[2] * r_n[e, 2]
+        val, c = k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1],
+                           dr[e], rb1, g0, lev_lo, lev_hi, e1, e2, M, V)
+        L += val
+        for i in range(3):
+            k = c * 0.5 * rhoA * dlt[i] * ih2
+            e1[6 + i] -= k
+            e2[6 + i] += k
         for i in range(6):
-            D1[e, i] += e1[i]
-            D1[e + 1, i] += e1[6 + i]
-            D2[e, i] += e2[i]
-            D2[e + 1, i] += e2[6 + i]
+            if lev_lo == 0:
+                D1[e, i] += e1[i]
+                D1[e + 1, i] += e1[6 + i]
+            if lev_hi == 2:
+                D2[e, i] += e2[i]
+                D2[e + 1, i] += e2[6 + i]
     for i in range(3):
-        D1[N, i] += 0.5 * h * force[i]
-        D2[N, i] += 0.5 * h * force[i]
-        L += 0.5 * h * force[i] * (r_n[N, i] + r_1[N, i])
+        if lev_lo == 0:
+            D1[N, i] += 0.5 * h * force[i]
+        if lev_hi == 2:
+            D2[N, i] += 0.5 * h * force[i]
+        L += 0.5 * h * force[i] * (r_n[N, i] + (r_n[N, i] + dr[N, i]))
     return L
 
 
@@ -983,7 +1089,7 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
                     blocks[e, i, k] = 0.0
                 continue
             k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
-            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
+            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0.0, 0, 1, e1, e2, M, V)
             for i in range(12):
                 col[i] = e1[i].imag * inv
             k_body_rows(Lam_n, e, col, blocks[e, :, k])
@@ -1011,25 +1117,26 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
                     blocks[e, i, k] = 0.0
                 continue
             _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
-            k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
+            k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0.0, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
 
 
 @njit(cache=True, inline="always", error_model="numpy")
 def k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
-    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
-    ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
+    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart (the level-n frames Lam_n and
+    positions r_n, the turns xi and increments dr): the element kernel's own (k_element's midpoint strain of the
+    centred element of k_rod_gradient, the same arithmetic to the bit).  A, B, C: (3, 3) scratch."""
     k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
     _k_mm(Lam_n[e], C, A)
     k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
     _k_mm(Lam_n[e + 1], C, B)
+    d0, d1 = C[0], C[1]
+    for k in range(3):
+        d0[k] = r_n[e + 1, k] - r_n[e, k]
+        d1[k] = (d0[k] + dr[e + 1, k]) - dr[e, k]
     gg = 0.0
     for i in range(3):
-        gi = 0.0
-        for k in range(3):
-            d0 = r_n[e + 1, k] - r_n[e, k]
-            d1 = d0 + dr[e + 1, k] - dr[e, k]
-            gi += (Lam_n[e, k, i] + Lam_n[e + 1, k, i]) * d0 + (A[k, i] + B[k, i]) * d1
-        gg += (gi / (4.0 * ds)) ** 2
+        gi = k_gamma_mid(k_body(Lam_n[e], d0, i), k_body(Lam_n[e + 1], d0, i), k_body(A, d1, i), k_body(B, d1, i), ds)
+        gg += gi * gi
     return math.sqrt(gg)

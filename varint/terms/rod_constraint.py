@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .rod import CHI, k_body_rows, k_cay, k_chart_column, _k_config_column, _k_mm
+from ..lattice.lie import k_cay
+from .rod import CHI, k_body_rows, k_chart_column, k_chords, k_gamma_mid, _k_config_column, _k_mm
 
 __all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -50,16 +51,12 @@ def _k_constraint_element(h, ds, L0a, L0b, r0a, r0b, L1a, L1b, r1a, r1b, lam, nc
     for i in range(3):
         d0[i] = r0b[i] - r0a[i]
         d1[i] = r1b[i] - r1a[i]
-    for i in range(3):
-        pa0[i] = L0a[0, i] * d0[0] + L0a[1, i] * d0[1] + L0a[2, i] * d0[2]
-        pb0[i] = L0b[0, i] * d0[0] + L0b[1, i] * d0[1] + L0b[2, i] * d0[2]
-        pa1[i] = L1a[0, i] * d1[0] + L1a[1, i] * d1[1] + L1a[2, i] * d1[2]
-        pb1[i] = L1b[0, i] * d1[0] + L1b[1, i] * d1[1] + L1b[2, i] * d1[2]
+    k_chords(L0a, L0b, d0, pa0, pb0)
+    k_chords(L1a, L1b, d1, pa1, pb1)
     c = h * ds
     val = 0.0 * lam[0]
     for i in range(3):
-        Gb = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
-        g = Gb - (1.0 if i == 0 else 0.0)
+        g = k_gamma_mid(pa0[i], pb0[i], pa1[i], pb1[i], ds) - CHI[i]
         if i < ncomp:
             val = val - c * lam[i] * g
             Dl[i] = -c * g
