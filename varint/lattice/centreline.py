@@ -38,7 +38,7 @@ from .parcels import label_problem
 EPS = np.finfo(float).eps
 
 __all__ = ["centreline_weights", "centreline", "centreline_and_weights", "stretched_volumes", "stretched_volume_derivatives",
-           "nodal_stretch"]
+           "nodal_stretch", "CR", "GHOST"]
 
 
 # ---------------------------------------------------------------------------
@@ -94,66 +94,95 @@ def centreline_and_weights(s, r, ds, periodic=False, period=None):
             np.einsum("ki,kid->kd", d2N, pts))
 
 
-@njit(cache=True)
-def _cr_basis(t, out, dout, d2out):
-    """Catmull–Rom weights of nodes e-1, e, e+1, e+2 at local coordinate t, and their t-derivatives."""
-    out[0] = 0.5 * (-t * t * t + 2.0 * t * t - t)
-    out[1] = 0.5 * (3.0 * t * t * t - 5.0 * t * t + 2.0)
-    out[2] = 0.5 * (-3.0 * t * t * t + 4.0 * t * t + t)
-    out[3] = 0.5 * (t * t * t - t * t)
-    dout[0] = 0.5 * (-3.0 * t * t + 4.0 * t - 1.0)
-    dout[1] = 0.5 * (9.0 * t * t - 10.0 * t)
-    dout[2] = 0.5 * (-9.0 * t * t + 8.0 * t + 1.0)
-    dout[3] = 0.5 * (3.0 * t * t - 2.0 * t)
-    d2out[0] = 0.5 * (-6.0 * t + 4.0)
-    d2out[1] = 0.5 * (18.0 * t - 10.0)
-    d2out[2] = 0.5 * (-18.0 * t + 8.0)
-    d2out[3] = 0.5 * (6.0 * t - 2.0)
+#: the Catmull-Rom weights of nodes e-1, e, e+1, e+2 at the local coordinate t of element e, as coefficients of
+#: t^0..t^3 (row i: node e-1+i; docs/theory.md §10.2): the one definition of the basis; its derivatives and divided
+#: differences are those of these polynomials (:func:`k_cr_basis`, :func:`k_cr_dd`)
+CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
+                     [2.0, 0.0, -5.0, 3.0],
+                     [0.0, 1.0, 4.0, -3.0],
+                     [0.0, 0.0, -1.0, 1.0]])
+#: a closed end's ghost node by quadratic extrapolation: r_{-1} = 3 r_0 - 3 r_1 + r_2, r_{N+1} = 3 r_N - 3 r_{N-1} +
+#: r_{N-2} (the coefficients of the end node, its neighbour and the next)
+GHOST = np.array([3.0, -3.0, 1.0])
+
+
+@njit(cache=True, inline="always")
+def k_cr_weights(t, w):
+    """w[i] = the Catmull-Rom weight of node e-1+i at local coordinate t (any scalar type)."""
+    t2 = t * t
+    t3 = t2 * t
+    for i in range(4):
+        w[i] = CR[i, 0] + CR[i, 1] * t + CR[i, 2] * t2 + CR[i, 3] * t3
+
+
+@njit(cache=True, inline="always")
+def k_cr_basis(t, w, dw, d2w):
+    """The Catmull-Rom weights of nodes e-1..e+2 at local coordinate t (:func:`k_cr_weights`) and their first
+    (:func:`k_cr_dd` at equal ends) and second t-derivatives."""
+    k_cr_weights(t, w)
+    k_cr_dd(t, t, dw)
+    for i in range(4):
+        d2w[i] = 2.0 * CR[i, 2] + 6.0 * CR[i, 3] * t
+
+
+@njit(cache=True, inline="always")
+def k_cr_dd(a, b, w):
+    """w[i] = (N_i(b) - N_i(a)) / (b - a) in local coordinates, exact for a = b too (the derivative) and free of
+    cancellation: the polynomials' divided differences, (b^p - a^p)/(b - a) = sum_q a^q b^(p-1-q)."""
+    d2 = a + b
+    d3 = a * a + a * b + b * b
+    for i in range(4):
+        w[i] = CR[i, 1] + CR[i, 2] * d2 + CR[i, 3] * d3
+
+
+@njit(cache=True, inline="always")
+def k_cr_stencil(e, n_nodes, periodic, nodes):
+    """Nodes e-1..e+2 of element e's Catmull-Rom stencil into ``nodes`` (mod n_nodes when periodic); returns the slot
+    of a closed end's ghost (0: node -1, 3: node N+1), or -1.  :func:`k_fold_ghost` folds its weight."""
+    for i in range(4):
+        j = e - 1 + i
+        nodes[i] = j % n_nodes if periodic else j
+    if periodic:
+        return -1
+    if nodes[0] < 0:
+        nodes[0] = 2  # its weight stays on r_2 (GHOST[2]), the rest goes to nodes 0 and 1 (slots 1, 2)
+        return 0
+    if nodes[3] > n_nodes - 1:
+        nodes[3] = n_nodes - 3  # on r_{N-2}, the rest on nodes N and N-1 (slots 2, 1)
+        return 3
+    return -1
+
+
+@njit(cache=True, inline="always")
+def k_fold_ghost(slot, w):
+    """A closed end's ghost (:data:`GHOST`) in stencil ``slot`` (:func:`k_cr_stencil`) folded into the weights w (4,)
+    of the real nodes: the end node's and its neighbour's slots gain 3 w and -3 w; the slot keeps w for the third
+    node.  A node may then appear twice in the stencil (sums over entries are what count)."""
+    if slot < 0:
+        return
+    x = w[slot]
+    end, nbr = (1, 2) if slot == 0 else (2, 1)
+    w[end] += GHOST[0] * x
+    w[nbr] += GHOST[1] * x
+    w[slot] = GHOST[2] * x
 
 
 @njit(cache=True)
 def k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
-    b = np.empty(4)
-    db = np.empty(4)
-    d2b = np.empty(4)
     n_el = n_nodes if periodic else n_nodes - 1
     for k in range(s.shape[0]):
         e = int(math.floor(s[k] / ds))
         if not periodic:
             e = min(max(e, 0), n_el - 1)  # the closed end s = L belongs to the last element
         t = s[k] / ds - e
-        _cr_basis(t, b, db, d2b)
+        k_cr_basis(t, N[k], dN[k], d2N[k])
         for i in range(4):
-            N[k, i] = b[i]
-            dN[k, i] = db[i] / ds
-            d2N[k, i] = d2b[i] / (ds * ds)
-            j = e - 1 + i
-            nodes[k, i] = j % n_nodes if periodic else j
-        if not periodic:
-            # ghosts: r_{-1} = 3 r_0 - 3 r_1 + r_2 and r_{N+1} = 3 r_N - 3 r_{N-1} + r_{N-2}
-            last = n_nodes - 1
-            if nodes[k, 0] < 0:
-                _fold(k, 0, (0, 1, 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
-            if nodes[k, 3] > last:
-                _fold(k, 3, (last, last - 1, last - 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
-
-
-@njit(cache=True)
-def _fold(k, slot, targets, coefs, nodes, N, dN, d2N):
-    """Replace the ghost in ``slot`` by coefs . (r of targets): the first two targets are already in
-    the stencil (their entries gain coef * weight), the slot itself takes the third."""
-    w, dw, d2w = N[k, slot], dN[k, slot], d2N[k, slot]
-    nodes[k, slot] = targets[2]
-    N[k, slot] = coefs[2] * w
-    dN[k, slot] = coefs[2] * dw
-    d2N[k, slot] = coefs[2] * d2w
-    for m in range(2):
-        for i in range(4):
-            if i != slot and nodes[k, i] == targets[m]:
-                N[k, i] += coefs[m] * w
-                dN[k, i] += coefs[m] * dw
-                d2N[k, i] += coefs[m] * d2w
-                break
+            dN[k, i] /= ds
+            d2N[k, i] /= ds * ds
+        ghost = k_cr_stencil(e, n_nodes, periodic, nodes[k])
+        k_fold_ghost(ghost, N[k])
+        k_fold_ghost(ghost, dN[k])
+        k_fold_ghost(ghost, d2N[k])
 
 
 # ---------------------------------------------------------------------------

@@ -52,6 +52,7 @@ import scipy.sparse.linalg as spla
 
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
+from ..lattice.centreline import CR, GHOST
 from ..terms.rod import origin_shift
 from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step,
                      potential, rigid_correction, rod_discrete_gradient, strains, tip_torque_forces)
@@ -64,11 +65,6 @@ _MQ = np.array([[1.0, -1.5, 1.0, -0.25],
                 [0.0, 0.5, -2.0 / 3.0, 0.25],
                 [0.0, 0.0, 1.0 / 3.0, -0.25],
                 [0.0, 0.0, 0.0, 0.25]])
-# Catmull-Rom weights of nodes e-1, e, e+1, e+2 as coefficients of t^0..t^3 (theory §10.2)
-_CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
-                      [2.0, 0.0, -5.0, 3.0],
-                      [0.0, 1.0, 4.0, -3.0],
-                      [0.0, 0.0, -1.0, 1.0]])
 
 
 def supports(model):
@@ -112,12 +108,12 @@ def _pows(t, lo, hi):
 
 def _cr(t):
     """The four Catmull-Rom weights (nodes e-1..e+2) at local coordinates t (.., 4)."""
-    return np.einsum("...p,ip->...i", _pows(t, 0, 3), _CR)
+    return np.einsum("...p,ip->...i", _pows(t, 0, 3), CR)
 
 
 def _cr_dd(a, b):
     """Their divided differences between a and b (.., 4), without cancellation."""
-    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), _CR[:, 1:])
+    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), CR[:, 1:])
 
 
 def _clip01(t):
@@ -220,16 +216,15 @@ def _element_of(s, ds, n_el):
 
 
 def _fold(rows, n_nodes):
-    """Closed-end ghosts of theory §10.2 folded into the real nodes: rows (..., K, n_nodes + 2) over nodes -1..N+1."""
+    """Closed-end ghosts of theory §10.2 (varint.lattice.centreline.GHOST) folded into the real nodes: rows
+    (..., K, n_nodes + 2) over nodes -1..N+1 (the dense layout of the numpy reference; the compiled kernels fold each
+    stencil, k_fold_ghost)."""
     W = rows[..., 1:-1].copy()
     g0, gN = rows[..., 0], rows[..., -1]
-    W[..., 0] += 3 * g0
-    W[..., 1] -= 3 * g0
-    W[..., 2] += g0
     N = n_nodes - 1
-    W[..., N] += 3 * gN
-    W[..., N - 1] -= 3 * gN
-    W[..., N - 2] += gN
+    for c, coef in enumerate(GHOST):
+        W[..., c] += coef * g0
+        W[..., N - c] += coef * gN
     return W
 
 
@@ -705,7 +700,7 @@ class TubeEMStep:
         B = r1r.shape[0]
         c1, Fs, FX = np.empty((B, K, 3), dt), np.empty((B, K), dt), np.empty((B, K, 3), dt)
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
-        kernels.label_constraint(self.r, self.D, self.X, self.s, fr, r1r, D1r, s1r, X1r, nur, self.ds, _CR, c1, Fr, FD,
+        kernels.label_constraint(self.r, self.D, self.X, self.s, fr, r1r, D1r, s1r, X1r, nur, self.ds, c1, Fr, FD,
                                  Fs, FX)
         return (c1.reshape(b + (K, 3)), Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3)), Fs.reshape(b + (K,)),
                 FX.reshape(b + (K, 3)))

@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..lattice.centreline import k_cr_dd, k_cr_stencil, k_cr_weights, k_fold_ghost
+
 
 @njit(cache=True)
 def _clip01(t):
@@ -143,9 +145,8 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
 
 
 # -- the labels' constraint c_k = D_e^T (X_k - X(s_k)) and its discrete derivative's forces (tube_em.label_constraint)
-# The Catmull-Rom weights of a label on element e sit on the padded nodes e..e+3 (nodes e-1..e+2); the closed-end
-# ghosts (padded 0 and N+2) fold into the real nodes as 3 x_0 - 3 x_1 + x_2 and 3 x_N - 3 x_(N-1) + x_(N-2)
-# (docs/theory.md §10.2, tube_em._fold).
+# The Catmull-Rom weights of a label on element e (nodes e-1..e+2, the closed ends' ghosts folded into the real nodes:
+# varint.lattice.centreline's k_cr_weights, k_cr_stencil, k_fold_ghost; docs/theory.md §10.2).
 
 
 @njit(cache=True)
@@ -154,87 +155,47 @@ def _element(s_re, ds, n_el):
     return 0 if e < 0 else (n_el - 1 if e > n_el - 1 else e)
 
 
-@njit(cache=True)
-def _cr(t, CR, w):
-    """w[i] = the Catmull-Rom weight of padded node e + i at local coordinate t."""
-    t2 = t * t
-    t3 = t2 * t
+@njit(cache=True, inline="always")
+def _add_piece(row, e, n_nodes, coef, w, nodes):
+    """row[node] += coef w[i] over element e's stencil (w: weights of nodes e-1..e+2), its ghost folded."""
+    k_fold_ghost(k_cr_stencil(e, n_nodes, False, nodes), w)
     for i in range(4):
-        w[i] = CR[i, 0] + CR[i, 1] * t + CR[i, 2] * t2 + CR[i, 3] * t3
+        row[nodes[i]] += coef * w[i]
 
 
 @njit(cache=True)
-def _cr_dd(a, b, CR, w):
-    """w[i] = (N_i(b) - N_i(a))/(b - a) in local coordinates, cancellation-free (tube_em._cr_dd)."""
-    d2 = a + b
-    d3 = a * a + a * b + b * b
-    for i in range(4):
-        w[i] = CR[i, 1] + CR[i, 2] * d2 + CR[i, 3] * d3
-
-
-@njit(cache=True)
-def _gather(x, q, N, a):
-    """Component a of the padded node q's position (a ghost folded)."""
-    if q == 0:
-        return 3.0 * x[0, a] - 3.0 * x[1, a] + x[2, a]
-    if q == N + 2:
-        return 3.0 * x[N, a] - 3.0 * x[N - 1, a] + x[N - 2, a]
-    return x[q - 1, a]
-
-
-@njit(cache=True)
-def _scatter(F, q, N, coef, vec):
-    """F[node] += coef * vec for the padded node q (a ghost's share to the nodes it folds into)."""
-    for a in range(3):
-        v = coef * vec[a]
-        if q == 0:
-            F[0, a] += 3.0 * v
-            F[1, a] -= 3.0 * v
-            F[2, a] += v
-        elif q == N + 2:
-            F[N, a] += 3.0 * v
-            F[N - 1, a] -= 3.0 * v
-            F[N - 2, a] += v
-        else:
-            F[q - 1, a] += v
-
-
-@njit(cache=True)
-def _dd_row(s0, s1, ds, n_el, CR, row, w):
-    """The label's divided differences (N_i(s1) - N_i(s0))/(s1 - s0) on the padded nodes, into ``row`` (zero on
-    entry); returns the range (lo, hi) written.  Per element crossed, the polynomial divided difference between the
-    piece's ends times its share of the step (tube_em.label_weights_dd)."""
+def _dd_row(s0, s1, ds, n_el, row, w, nodes):
+    """The label's divided differences (N_i(s1) - N_i(s0))/(s1 - s0) on the nodes, into ``row`` (zero on entry);
+    returns the range (lo, hi) of nodes written.  Per element crossed, the polynomial divided difference between the
+    piece's ends (varint.lattice.centreline.k_cr_dd) times its share of the step (tube_em.label_weights_dd)."""
+    n_nodes = n_el + 1
     e0 = _element(s0, ds, n_el)
     e1 = _element(s1.real, ds, n_el)
     a = s0 / ds - e0
     if e0 == e1:
-        _cr_dd(a + 0.0 * s1, s1 / ds - e0, CR, w)
-        for i in range(4):
-            row[e0 + i] += w[i] / ds
-        return e0, e0 + 3
+        k_cr_dd(a + 0.0 * s1, s1 / ds - e0, w)
+        _add_piece(row, e0, n_nodes, 1.0 / ds, w, nodes)
+        return max(e0 - 1, 0), min(e0 + 2, n_el)
     up = e1 > e0
     dsv = s1 - s0
     b = 1.0 if up else 0.0
-    _cr_dd(a + 0.0 * s1, b + 0.0 * s1, CR, w)
-    for i in range(4):
-        row[e0 + i] += w[i] * ((b - a) / dsv)
+    k_cr_dd(a + 0.0 * s1, b + 0.0 * s1, w)
+    _add_piece(row, e0, n_nodes, (b - a) / dsv, w, nodes)
     a = 0.0 if up else 1.0
     b1 = s1 / ds - e1
-    _cr_dd(a + 0.0 * s1, b1, CR, w)
-    for i in range(4):
-        row[e1 + i] += w[i] * ((b1 - a) / dsv)
+    k_cr_dd(a + 0.0 * s1, b1, w)
+    _add_piece(row, e1, n_nodes, (b1 - a) / dsv, w, nodes)
     sign = 1.0 if up else -1.0
     lo_e, hi_e = (e0, e1) if up else (e1, e0)
     for e in range(lo_e + 1, hi_e):  # whole elements crossed in one step (rare)
         lo, hi = (0.0, 1.0) if up else (1.0, 0.0)
-        _cr_dd(lo + 0.0 * s1, hi + 0.0 * s1, CR, w)
-        for i in range(4):
-            row[e + i] += w[i] * sign / dsv
-    return lo_e, hi_e + 3
+        k_cr_dd(lo + 0.0 * s1, hi + 0.0 * s1, w)
+        _add_piece(row, e, n_nodes, sign / dsv, w, nodes)
+    return max(lo_e - 1, 0), min(hi_e + 2, n_el)
 
 
 @njit(cache=True)
-def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD, Fs, FX):
+def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, c1, Fr, FD, Fs, FX):
     """The labels' constraint at the new levels and its discrete derivative's forces from the multipliers nu, for each
     row b of the batch (r1 (B, N+1, 3), D1 (B, N+1, 3, 3), s1 (B, M+1), X1, nu (B, M-1, 3)); the level (r0, D0, X0,
     s0) real, fr the labels' frame nodes.  Writes c1 (B, M-1, 3), Fr (B, N+1, 3), FD (B, N+1, 3, 3), Fs (B, M-1),
@@ -243,7 +204,8 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
     K = X0.shape[0]
     dt = c1.dtype
     w0, w1, w = np.empty(4), np.empty(4, dtype=dt), np.empty(4, dtype=dt)
-    row = np.zeros(N + 3, dtype=dt)
+    n0, n1, nodes = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4, np.int64)
+    row = np.zeros(N + 1, dtype=dt)
     x1, xb, Dnu, y0, y1, nu_b = (np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt),
                                  np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt))
     Fr[:] = 0.0
@@ -254,21 +216,20 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
             sk0, sk1 = s0[k + 1], s1[b, k + 1]
             e0 = _element(sk0, ds, N)
             e1 = _element(sk1.real, ds, N)
-            _cr(sk0 / ds - e0, CR, w0)
-            _cr(sk1 / ds - e1, CR, w1)
+            k_cr_weights(sk0 / ds - e0, w0)
+            k_fold_ghost(k_cr_stencil(e0, N + 1, False, n0), w0)
+            k_cr_weights(sk1 / ds - e1, w1)
+            k_fold_ghost(k_cr_stencil(e1, N + 1, False, n1), w1)
             # x1 = X1 - X(s1) at level 1; xb = Xbar - Wbar rbar (Wbar, rbar the levels' means)
             for a in range(3):
                 X1a = X1[b, k, a]
                 g1 = 0.0 * X1a
                 gb = 0.0 * X1a
                 for i in range(4):
-                    p1 = _gather(r1[b], e1 + i, N, a)
-                    p0 = _gather(r0, e1 + i, N, a)
+                    p1 = r1[b, n1[i], a]
                     g1 += w1[i] * p1
-                    gb += 0.25 * w1[i] * (p0 + p1)
-                    q0 = _gather(r0, e0 + i, N, a)
-                    q1 = _gather(r1[b], e0 + i, N, a)
-                    gb += 0.25 * w0[i] * (q0 + q1)
+                    gb += 0.25 * w1[i] * (r0[n1[i], a] + p1)
+                    gb += 0.25 * w0[i] * (r0[n0[i], a] + r1[b, n0[i], a])
                 x1[a] = X1a - g1
                 xb[a] = 0.5 * (X0[k, a] + X1a) - gb
             for a in range(3):
@@ -284,19 +245,20 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
                 Dnu[a] = acc
                 FX[b, k, a] = acc
             for i in range(4):
-                _scatter(Fr[b], e0 + i, N, -0.5 * w0[i], Dnu)
-                _scatter(Fr[b], e1 + i, N, -0.5 * w1[i], Dnu)
+                for a in range(3):
+                    Fr[b, n0[i], a] += -0.5 * w0[i] * Dnu[a]
+                    Fr[b, n1[i], a] += -0.5 * w1[i] * Dnu[a]
             for a in range(3):
                 for i in range(3):
                     FD[b, j, a, i] += xb[a] * nu_b[i]
             # F_s = -(1/2) sum_l (DD r_l) . (D_e^l nu), l = 0, 1
-            lo, hi = _dd_row(sk0, sk1, ds, N, CR, row, w)
+            lo, hi = _dd_row(sk0, sk1, ds, N, row, w, nodes)
             for a in range(3):
                 acc0 = 0.0 * x1[0]
                 acc1 = 0.0 * x1[0]
                 for q in range(lo, hi + 1):
-                    acc0 += row[q] * _gather(r0, q, N, a)
-                    acc1 += row[q] * _gather(r1[b], q, N, a)
+                    acc0 += row[q] * r0[q, a]
+                    acc1 += row[q] * r1[b, q, a]
                 y0[a] = acc0
                 y1[a] = acc1
             for q in range(lo, hi + 1):

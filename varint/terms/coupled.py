@@ -750,10 +750,14 @@ def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds):
 
 
 @njit(cache=True)
-def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X):
-    """`centreline_and_weights`: weights of labels s on r and X, X', X'' (the period added to the nodes
-    past the end of a periodic tube)."""
+def _centreline_points(s, r, ds, periodic, period):
+    """`centreline_and_weights`: ``(nodes, N, dN, d2N, X, X', X'')``, the weights of labels s on r and the centreline
+    they give (the period added to the nodes past the end of a periodic tube)."""
     n = r.shape[0]
+    m = s.shape[0]
+    nodes = np.empty((m, 4), np.int64)
+    N, dN, d2N = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
+    X, dX, d2X = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     k_centreline_weights(s, n, ds, periodic, nodes, N, dN, d2N)
     for k in range(s.shape[0]):
         e = int(math.floor(s[k] / ds))
@@ -768,6 +772,7 @@ def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X
                 X[k, d] += N[k, i] * p
                 dX[k, d] += dN[k, i] * p
                 d2X[k, d] += d2N[k, i] * p
+    return nodes, N, dN, d2N, X, dX, d2X
 
 
 @njit(cache=True)
@@ -821,14 +826,7 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
         DR[j] = -0.5 * h * gy[o_R + j]
     if grav:
         # -g . sum_k mbar_k X(sbar_k; rbar): linear in r with weights summing to one
-        nodes = np.empty((n_lab, 4), np.int64)
-        N = np.empty((n_lab, 4))
-        dN = np.empty((n_lab, 4))
-        d2N = np.empty((n_lab, 4))
-        X = np.empty((n_lab, 3))
-        dX = np.empty((n_lab, 3))
-        d2X = np.empty((n_lab, 3))
-        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        nodes, N, dN, d2N, X, dX, d2X = _centreline_points(sbar, rbar, ds, periodic, period)
         for k in range(n_lab):
             U -= mbar[k] * (X[k, 0] * g[0] + X[k, 1] * g[1] + X[k, 2] * g[2])
             Ds[k] += 0.5 * h * mbar[k] * (dX[k, 0] * g[0] + dX[k, 1] * g[1] + dX[k, 2] * g[2])
@@ -1175,14 +1173,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
     cols[:nJ] = Ji
     vals[:nJ] = Jx
     if grav:
-        nodes = np.empty((n_lab, 4), np.int64)
-        N = np.empty((n_lab, 4))
-        dN = np.empty((n_lab, 4))
-        d2N = np.empty((n_lab, 4))
-        X = np.empty((n_lab, 3))
-        dX = np.empty((n_lab, 3))
-        d2X = np.empty((n_lab, 3))
-        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        nodes, N, dN, d2N, X, dX, d2X = _centreline_points(sbar, rbar, ds, periodic, period)
         q = nJ
         for k in range(n_lab):
             for i in range(4):
@@ -1244,20 +1235,8 @@ def _k_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton
     Lambda^nT of their node, columns mapped to b by Lambda^n of theirs."""
     n = r0.shape[0]
     n_lab = s0.shape[0]
-    nodes0 = np.empty((n_lab, 4), np.int64)
-    nodes1 = np.empty((n_lab, 4), np.int64)
-    N0 = np.empty((n_lab, 4))
-    N1 = np.empty((n_lab, 4))
-    dN0 = np.empty((n_lab, 4))
-    dN1 = np.empty((n_lab, 4))
-    d2N = np.empty((n_lab, 4))
-    X0 = np.empty((n_lab, 3))
-    X1 = np.empty((n_lab, 3))
-    dX0 = np.empty((n_lab, 3))
-    dX1 = np.empty((n_lab, 3))
-    d2X = np.empty((n_lab, 3))
-    _centreline_points(s0, r0, ds, periodic, period, nodes0, N0, dN0, d2N, X0, dX0, d2X)
-    _centreline_points(s1, r1, ds, periodic, period, nodes1, N1, dN1, d2N, X1, dX1, d2X)
+    nodes0, N0, dN0, _, X0, dX0, _ = _centreline_points(s0, r0, ds, periodic, period)
+    nodes1, N1, dN1, _, X1, dX1, _ = _centreline_points(s1, r1, ds, periodic, period)
     rod0 = np.zeros((n, 6))
     rod1 = np.zeros((n, 6))
     gs0 = np.zeros(n_lab)
