@@ -264,3 +264,37 @@ def test_catmull_rom_kernels_are_the_basis_polynomials():
             np.add.at(got, nodes, w)
             assert nodes.min() >= 0 and nodes.max() < n_nodes
             assert np.abs(got - ref).max() < 1e-15
+
+
+def test_moment_kernels_are_the_element_integrals():
+    """varint.lattice.centreline's moments (MQ, k_moments, k_moments_dd: the one table of the stretched volumes, for
+    the coupled kernels and the energy-momentum step's pairs) against quadrature of (1 - tau)^(3-q) tau^q, their
+    divided differences, complex steps; k_piece_volume with a unit stretch is the straight tube's element integral."""
+    from varint.lattice.centreline import MQ, k_moments, k_moments_dd, k_piece_volume
+    from varint.lattice.parcels import volume_below
+    from varint.schemes.em_tube import _moments
+
+    rng = np.random.default_rng(4)
+    for t in np.r_[0.0, 1e-9, 1.0, rng.uniform(0, 1, 5)]:
+        M = np.empty(4)
+        k_moments(t, M)
+        P = np.polynomial.Polynomial
+        ref = [((P([1.0, -1.0]) ** (3 - q)) * P([0.0, 1.0]) ** q).integ()(t) for q in range(4)]  # exact antiderivatives
+        assert np.abs(M - ref).max() < 4e-16 * max(t, 1e-16)
+        assert np.abs(M - _moments(np.array(t), False)).max() < 1e-16
+        Mc = np.empty(4, complex)
+        k_moments(t + 1e-30j, Mc)
+        assert np.abs(Mc.imag / 1e-30 - [(1 - t) ** (3 - q) * t ** q for q in range(4)]).max() < 1e-15
+        dd, Mb = np.empty(4), np.empty(4)
+        k_moments(t + 0.2, Mb)
+        k_moments_dd(t, t + 0.2, dd)
+        assert np.abs(dd - (Mb - M) / 0.2).max() < 1e-14
+    assert MQ.shape == (4, 4)
+    R, ds = np.array([0.05, 0.07]), 0.3
+    for lo, hi in ((0.0, 1.0), (0.2, 0.9)):
+        S, Sl = np.empty(4), np.empty(4)
+        k_moments(hi, S)
+        k_moments(lo, Sl)
+        v = k_piece_volume(R[0], R[1], 1.0, 1.0, S - Sl, ds)
+        F = volume_below(np.array([lo, hi]) * ds, R, ds)
+        assert v == pytest.approx(F[1] - F[0], rel=1e-14)

@@ -193,7 +193,6 @@ def test_the_compiled_loops_are_the_numpy_ones(case):
     branch), on the level itself, and for labels moved exactly onto nodes (where the branches meet); the labels'
     constraint with labels crossing up to three elements; to round-off."""
     from varint.schemes import em_tube_kernels as kernels
-    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model(case), 1e-3)
     rng = np.random.default_rng(5)
@@ -218,7 +217,7 @@ def test_the_compiled_loops_are_the_numpy_ones(case):
         gam1 = st.stretches(r1, D1)[2]
         pk, pe = st._pairs(np.minimum(st.s, s1), np.maximum(st.s, s1))
         V = np.empty((1, st.M))
-        kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, _MQ, V)
+        kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, V)
         assert np.abs(V[0] - st._volumes_on(s1, R1, gam1, pk, pe)).max() < 1e-15 * V.max(), name
     # the labels' constraint alone, its labels moved across up to three elements in one step, real and complex
     ds = 2.5 * st.ds * np.cos(np.arange(st.M - 1))
@@ -239,7 +238,6 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
     passes a complex step through (tube_em._clip_owned), so dV/ds by complex step is the volumes' derivative (V is
     C^1 in s), measured by central differences, not twice it (as it was before)."""
     from varint.schemes import em_tube_kernels as kernels
-    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model("gas-pressurised-on-nodes"), 1e-3)
     on_node = np.abs(st.s / st.ds - np.rint(st.s / st.ds)) < 1e-12
@@ -251,8 +249,7 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
         if not compiled:
             return st._volumes_on(s, st.R, gam, pk, pe)
         V = np.empty((1, st.M), dtype=np.result_type(s, float))
-        kernels.pair_volumes(np.atleast_2d(s), st.R[None].astype(V.dtype), gam[None].astype(V.dtype), pk, pe, st.ds,
-                             _MQ, V)
+        kernels.pair_volumes(np.atleast_2d(s), st.R[None].astype(V.dtype), gam[None].astype(V.dtype), pk, pe, st.ds, V)
         return V[0]
 
     for k in range(1, st.M):

@@ -33,12 +33,12 @@ import math
 import numpy as np
 from numba import njit
 
-from .parcels import label_problem
+from .parcels import k_locate, label_problem
 
 EPS = np.finfo(float).eps
 
 __all__ = ["centreline_weights", "centreline", "centreline_and_weights", "stretched_volumes", "stretched_volume_derivatives",
-           "nodal_stretch", "CR", "GHOST"]
+           "nodal_stretch", "CR", "GHOST", "MQ"]
 
 
 # ---------------------------------------------------------------------------
@@ -190,14 +190,24 @@ def k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
 
 
 def nodal_stretch(stretch_elements, periodic=False):
-    """gamma_j from element stretches |Gamma_e|: the mean of the elements at node j (§10.3)."""
-    g = np.asarray(stretch_elements, dtype=np.float64)
+    """gamma_j from element stretches |Gamma_e| (..., n_el): the mean of the elements at node j (§10.3), a closed
+    end node taking its one element's (leading batch axes, real or complex; the compiled kernels' entries:
+    :func:`k_stretch_weight`)."""
+    g = np.asarray(stretch_elements)
+    if not np.iscomplexobj(g):
+        g = g.astype(np.float64, copy=False)
     if periodic:
-        return 0.5 * (g + np.roll(g, 1))
-    out = np.empty(len(g) + 1)
-    out[0], out[-1] = g[0], g[-1]
-    out[1:-1] = 0.5 * (g[:-1] + g[1:])
-    return out
+        return 0.5 * (g + np.roll(g, 1, axis=-1))
+    return np.concatenate([g[..., :1], 0.5 * (g[..., :-1] + g[..., 1:]), g[..., -1:]], -1)
+
+
+@njit(cache=True, inline="always")
+def k_stretch_weight(j, n_nodes, periodic):
+    """T_je for j an end node of element e: the element's share of the nodal stretch gamma_j (:func:`nodal_stretch`):
+    1/2, but 1 at a closed tube's end nodes, which have one element only."""
+    if not periodic and (j == 0 or j == n_nodes - 1):
+        return 1.0
+    return 0.5
 
 
 def _prepare(s, R, gamma, ds, periodic):
@@ -249,39 +259,46 @@ def stretched_volume_derivatives(s, R, gamma, ds, periodic=False):
     return V, index, grad, hess
 
 
-@njit(cache=True)
-def _moments(t, M):
-    """M[q] = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, and their t-derivatives are the integrand."""
-    u = 1.0 - t
+#: M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, as coefficients of t^1..t^4 (row q): the element's moments
+#: of the stretched volume (module docstring), the one definition (:func:`k_moments`, :func:`k_moments_dd`)
+MQ = np.array([[1.0, -1.5, 1.0, -0.25],
+               [0.0, 0.5, -2.0 / 3.0, 0.25],
+               [0.0, 0.0, 1.0 / 3.0, -0.25],
+               [0.0, 0.0, 0.0, 0.25]])
+
+
+@njit(cache=True, inline="always")
+def k_moments(t, out):
+    """out[q] = M_q(t), q = 0..3 (any scalar type); their t-derivatives are the integrand (1 - t)^(3-q) t^q."""
     t2 = t * t
     t3 = t2 * t
     t4 = t3 * t
-    M[0] = 0.25 * (1.0 - u * u * u * u)
-    M[1] = 0.5 * t2 - 2.0 * t3 / 3.0 + 0.25 * t4
-    M[2] = t3 / 3.0 - 0.25 * t4
-    M[3] = 0.25 * t4
+    for q in range(4):
+        out[q] = MQ[q, 0] * t + MQ[q, 1] * t2 + MQ[q, 2] * t3 + MQ[q, 3] * t4
 
 
-@njit(cache=True)
-def _element_G(Rl, gl, t, ds):
-    """G_e(t) for the element's radii Rl[0:2] and stretches gl[0:2]."""
-    Mq = np.empty(4)
-    _moments(t, Mq)
-    G = 0.0
+@njit(cache=True, inline="always")
+def k_moments_dd(a, b, out):
+    """out[q] = (M_q(b) - M_q(a)) / (b - a), exact for a = b too and free of cancellation: the polynomials' divided
+    differences, (b^p - a^p)/(b - a) by dd_p = a dd_(p-1) + b^(p-1)."""
+    d2 = a + b
+    d3 = a * d2 + b * b
+    d4 = a * d3 + b * b * b
+    for q in range(4):
+        out[q] = MQ[q, 0] + MQ[q, 1] * d2 + MQ[q, 2] * d3 + MQ[q, 3] * d4
+
+
+@njit(cache=True, inline="always")
+def k_piece_volume(Ra, Rb, ga, gb, S, ds):
+    """The stretched volume of the piece of an element between two local coordinates, ds pi sum_(ijl) R_i R_j gamma_l
+    S_(i+j+l) over its end nodes i, j, l in {0, 1} (radii Ra, Rb and stretches ga, gb), S[q] = M_q(t_hi) - M_q(t_lo)
+    (:func:`k_moments`).  Any scalar type."""
+    acc = 0.0 * S[0]
     for i in range(2):
         for j in range(2):
             for l in range(2):
-                G += Rl[i] * Rl[j] * gl[l] * Mq[i + j + l]
-    return ds * math.pi * G
-
-
-@njit(cache=True)
-def _locate_el(x, ds, nR, periodic):
-    if periodic:
-        e = int(math.floor(x / ds))
-    else:
-        e = min(max(int(math.floor(x / ds)), 0), nR - 2)
-    return e, x / ds - e
+                acc += (Ra if i == 0 else Rb) * (Ra if j == 0 else Rb) * (ga if l == 0 else gb) * S[i + j + l]
+    return ds * math.pi * acc
 
 
 @njit(cache=True)
@@ -297,18 +314,27 @@ def _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl):
 
 
 @njit(cache=True)
-def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
+def _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml):
+    """V_k of the parcel [s_k, s_{k+1}]: its pieces on the elements it covers (:func:`k_piece_volume`)."""
     nR = R.shape[0]
-    Rl = np.empty(2)
-    gl = np.empty(2)
+    e0, t0, _ = k_locate(s[k], ds, nR, periodic)
+    e1, t1, _ = k_locate(s[k + 1], ds, nR, periodic)
+    v = 0.0
+    for e in range(e0, e1 + 1):
+        lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
+        k_moments(hi, Mh)
+        k_moments(lo, Ml)
+        for q in range(4):
+            Mh[q] -= Ml[q]
+        v += k_piece_volume(Rl[0], Rl[1], gl[0], gl[1], Mh, ds)
+    return v
+
+
+@njit(cache=True)
+def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
+    Rl, gl, Mh, Ml = np.empty(2), np.empty(2), np.empty(4), np.empty(4)
     for k in range(s.shape[0] - 1):
-        e0, t0 = _locate_el(s[k], ds, nR, periodic)
-        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
-        v = 0.0
-        for e in range(e0, e1 + 1):
-            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
-            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
-        V[k] = v
+        V[k] = _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml)
 
 
 @njit(cache=True)
@@ -319,7 +345,7 @@ def _add_element(Rl, gl, t, sign, ds, slot, n_nodes, g, H):
     element's first local node.
     """
     Mq = np.empty(4)
-    _moments(t, Mq)
+    k_moments(t, Mq)
     c = sign * ds * math.pi
     for i in range(2):
         iR = 2 + slot + i
@@ -368,11 +394,11 @@ def _add_end(Rl, gl, t, sign, ds, slot, n_nodes, label, g, H):
 def k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess):
     nR = R.shape[0]
     M = s.shape[0] - 1
-    Rl = np.empty(2)
-    gl = np.empty(2)
+    Rl, gl, Mh, Ml = np.empty(2), np.empty(2), np.empty(4), np.empty(4)
     for k in range(M):
-        e0, t0 = _locate_el(s[k], ds, nR, periodic)
-        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
+        V[k] = _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml)
+        e0, t0, _ = k_locate(s[k], ds, nR, periodic)
+        e1, t1, _ = k_locate(s[k + 1], ds, nR, periodic)
         g = grad[k]
         H = hess[k]
         index[k, 0] = k
@@ -381,15 +407,12 @@ def k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, 
             node = (e0 + m) % nR if periodic else e0 + m
             index[k, 2 + m] = M + 1 + node
             index[k, 2 + n_nodes + m] = M + 1 + nR + node
-        v = 0.0
         for e in range(e0, e1 + 1):
             slot = e - e0
             lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
-            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
             _add_element(Rl, gl, hi, 1.0, ds, slot, n_nodes, g, H)
             _add_element(Rl, gl, lo, -1.0, ds, slot, n_nodes, g, H)
             if e == e1:
                 _add_end(Rl, gl, t1, 1.0, ds, slot, n_nodes, 1, g, H)
             if e == e0:
                 _add_end(Rl, gl, t0, -1.0, ds, slot, n_nodes, 0, g, H)
-        V[k] = v

@@ -223,13 +223,11 @@ class Model:
 
     def open_volumes(self, s, Lam, r):
         """The stretched volumes of the open coupled tube's parcels (labels ``s``) on the extended lattice (§13.1)."""
-        from ..lattice.centreline import stretched_volumes
-        from ..terms.coupled import element_strains, stretch_map
+        from ..terms.coupled import element_strains, stretched_volumes_of
 
         ext = self.tube.ext
         G, _, _ = element_strains(ext.frames(Lam), ext.positions(r), self.tube.ds)
-        gamma = stretch_map(ext.n_ext, False) @ np.linalg.norm(G, axis=1)
-        return stretched_volumes(np.asarray(s) + ext.shift, ext.pad(self.tube.R_reference), gamma, self.tube.ds, False)
+        return stretched_volumes_of(np.asarray(s) + ext.shift, ext.pad(self.tube.R_reference), G, self.tube.ds, False)
 
     def centreline(self, s, r):
         """``centreline_and_weights`` of the labels ``s`` on the rod positions ``r`` (N+1, 3): a periodic tube's

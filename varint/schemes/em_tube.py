@@ -52,7 +52,7 @@ import scipy.sparse.linalg as spla
 
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
-from ..lattice.centreline import CR, GHOST
+from ..lattice.centreline import CR, GHOST, MQ, nodal_stretch
 from ..terms.rod import origin_shift
 from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step,
                      potential, rigid_correction, rod_discrete_gradient, strains, tip_torque_forces)
@@ -60,11 +60,6 @@ from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton,
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
 
-# M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, as coefficients of t^1..t^4 (theory §10.3)
-_MQ = np.array([[1.0, -1.5, 1.0, -0.25],
-                [0.0, 0.5, -2.0 / 3.0, 0.25],
-                [0.0, 0.0, 1.0 / 3.0, -0.25],
-                [0.0, 0.0, 0.0, 0.25]])
 
 
 def supports(model):
@@ -134,7 +129,7 @@ def _moment_dd(t0, t1, last):
     re = np.real(t0)
     owns = (re >= 0) & ((re < 1) | (last & (re <= 1)))
     frac = np.where(same, np.where(owns, 1.0, 0.0), (c1 - c0) / np.where(same, 1.0, dt))
-    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), _MQ)
+    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), MQ)
     return dd * frac[..., None]
 
 
@@ -148,7 +143,7 @@ def _clip_owned(t, last):
 
 def _moments(t, last):
     """M_q(clip t), q = 0..3 (last axis); ``last``: the pair is on the last element (:func:`_clip_owned`)."""
-    return np.einsum("...p,qp->...q", _pows(_clip_owned(t, last), 1, 4), _MQ)
+    return np.einsum("...p,qp->...q", _pows(_clip_owned(t, last), 1, 4), MQ)
 
 
 def _over(s, ds):
@@ -457,8 +452,7 @@ class TubeEMStep:
         """Gamma_e (.., N, 3), |Gamma_e| (.., N) and the nodal stretch gamma_j (.., N+1) of theory §10.3."""
         G = strains(r, D, self.ds)[1]
         a = np.sqrt(np.sum(G * G, -1))  # sqrt of the sum of squares (not abs): complex steps pass through
-        gam = np.concatenate([a[..., :1], 0.5 * (a[..., :-1] + a[..., 1:]), a[..., -1:]], -1)
-        return G, a, gam
+        return G, a, nodal_stretch(a)
 
     def _pairs(self, s_lo, s_hi):
         """(parcel, element) pairs that parcels [s_lo_k, s_hi_{k+1}] may cover (real bounds)."""
@@ -590,7 +584,7 @@ class TubeEMStep:
             s1r, R1r = _batch_rows(s1, b, (self.M + 1,), dt), _batch_rows(R1, b, (self.N + 1,), dt)
             g1r = _batch_rows(gam1, b, (self.N + 1,), dt)
             V1 = np.empty((s1r.shape[0], self.M), dtype=dt)
-            kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, _MQ, V1)
+            kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, V1)
             V1 = V1.reshape(b + (self.M,))
         else:
             V1 = self._volumes_on(s1, R1, gam1, pk, pe)
@@ -607,7 +601,7 @@ class TubeEMStep:
             B = s1r.shape[0]
             gs, gR, gg = np.empty((B, self.M + 1), dt), np.empty((B, self.N + 1), dt), np.empty((B, self.N + 1), dt)
             kernels.pair_gradients(self.s, s1r, self.R, R1r, lvl["gam0"], g1r, pk, pe, _batch_rows(c, b, (self.M,), dt),
-                                   p0["S0"], self.ds, _MQ, gs, gR, gg)
+                                   p0["S0"], self.ds, gs, gR, gg)
             return self._fluid_out(V0, V1, c, gs.reshape(b + (-1,)), gR.reshape(b + (-1,)), gg.reshape(b + (-1,)))
         cp = c[..., pk]  # per pair
         ds = self.ds

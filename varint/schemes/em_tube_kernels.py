@@ -9,7 +9,7 @@ parts, as numpy's).  The numpy code stays the readable reference; tests/test_tub
 other.
 
 Notation as in tube_em: pair p covers parcel k = pk[p] on element e = pe[p]; the label coordinates on the element
-t = s/ds - e; M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau (coefficients MQ of t^1..t^4); S_q = M_q(t_hi) - M_q(t_lo);
+t = s/ds - e; M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau (varint.lattice.centreline.MQ); S_q = M_q(t_hi) - M_q(t_lo);
 the pair's volume ds pi sum_(ijl) R_i R_j gamma_l S_(i+j+l) over its element's two end nodes i, j, l in {0, 1}.
 """
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..lattice.centreline import k_cr_dd, k_cr_stencil, k_cr_weights, k_fold_ghost
+from ..lattice.centreline import k_cr_dd, k_cr_stencil, k_cr_weights, k_fold_ghost, k_moments, k_moments_dd, k_piece_volume
 
 
 @njit(cache=True)
@@ -40,20 +40,17 @@ def _clip_owned(t, last):
 
 
 @njit(cache=True)
-def _moments(t, last, MQ, out):
-    """out[q] = M_q(clip t), q = 0..3 (tube_em._moments)."""
-    c = _clip_owned(t, last)
-    c2 = c * c
-    c3 = c2 * c
-    c4 = c3 * c
-    for q in range(4):
-        out[q] = MQ[q, 0] * c + MQ[q, 1] * c2 + MQ[q, 2] * c3 + MQ[q, 3] * c4
+def _moments(t, last, out):
+    """out[q] = M_q(clip t), q = 0..3 (tube_em._moments; varint.lattice.centreline.k_moments)."""
+    k_moments(_clip_owned(t, last), out)
 
 
 @njit(cache=True)
-def _moment_dd(t0, t1, last, MQ, out):
-    """out[q] = (M_q(clip t1) - M_q(clip t0))/(t1 - t0), cancellation-free (tube_em._moment_dd): where t0 = t1 (real
-    parts) the derivative on the element that owns the point ([0, 1), or [0, 1] on the last element)."""
+def _moment_dd(t0, t1, last, out):
+    """out[q] = (M_q(clip t1) - M_q(clip t0))/(t1 - t0), cancellation-free (tube_em._moment_dd): the polynomials'
+    divided difference between the clipped ends (varint.lattice.centreline.k_moments_dd) times the fraction of
+    [t0, t1] inside [0, 1]; where t0 = t1 (real parts) the derivative on the element that owns the point ([0, 1), or
+    [0, 1] on the last element)."""
     a, b = _clip01(t0), _clip01(t1)
     dt = t1 - t0
     if dt.real == 0.0:
@@ -61,18 +58,15 @@ def _moment_dd(t0, t1, last, MQ, out):
         frac = (1.0 + 0.0 * dt) if (re >= 0.0 and (re < 1.0 or (last and re <= 1.0))) else 0.0 * dt
     else:
         frac = (b - a) / dt
-    # (b^p - a^p)/(b - a) for p = 1..4 by dd_p = a dd_(p-1) + b^(p-1)
-    d2 = a + b
-    d3 = a * d2 + b * b
-    d4 = a * d3 + b * b * b
+    k_moments_dd(a, b, out)
     for q in range(4):
-        out[q] = (MQ[q, 0] + MQ[q, 1] * d2 + MQ[q, 2] * d3 + MQ[q, 3] * d4) * frac
+        out[q] *= frac
 
 
 @njit(cache=True)
-def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
-    """out (B, M) = parcel volumes V_k of the levels (rows of s (B, M+1), R, gam (B, N+1)): the pairs' volumes summed
-    into their parcels (tube_em's _volumes_on)."""
+def pair_volumes(s, R, gam, pk, pe, ds, out):
+    """out (B, M) = parcel volumes V_k of the levels (rows of s (B, M+1), R, gam (B, N+1)): the pairs' volumes
+    (varint.lattice.centreline.k_piece_volume) summed into their parcels (tube_em's _volumes_on)."""
     Sh = np.empty(4, dtype=out.dtype)
     Sl = np.empty(4, dtype=out.dtype)
     out[:] = 0.0
@@ -80,18 +74,15 @@ def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
         for p in range(pk.size):
             k, e = pk[p], pe[p]
             last = e == R.shape[1] - 2
-            _moments(s[b, k + 1] / ds - e, last, MQ, Sh)
-            _moments(s[b, k] / ds - e, last, MQ, Sl)
-            acc = 0.0 * Sh[0]
-            for i in range(2):
-                for j in range(2):
-                    for l in range(2):
-                        acc += R[b, e + i] * R[b, e + j] * gam[b, e + l] * (Sh[i + j + l] - Sl[i + j + l])
-            out[b, k] += ds * np.pi * acc
+            _moments(s[b, k + 1] / ds - e, last, Sh)
+            _moments(s[b, k] / ds - e, last, Sl)
+            for q in range(4):
+                Sh[q] -= Sl[q]
+            out[b, k] += k_piece_volume(R[b, e], R[b, e + 1], gam[b, e], gam[b, e + 1], Sh, ds)
 
 
 @njit(cache=True)
-def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
+def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, gs, gR, gg):
     """The discrete gradient of sum_k c_k V_k between the level (s0, R0, g0: real, 1-D; S0 (npairs, 4) its pairs'
     S_q, as tube_em's level cache keeps them) and each row of (s1, R1, g1) with its coefficients c (B, M), per pair
     and scattered: gs (B, M+1) on all labels, gR (B, N+1) on the radii,
@@ -110,12 +101,12 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
             last = e == N - 1
             tl0, th0 = s0[k] / ds - e, s0[k + 1] / ds - e
             tl1, th1 = s1[b, k] / ds - e, s1[b, k + 1] / ds - e
-            _moments(th1, last, MQ, S1h)
-            _moments(tl1, last, MQ, S1l)
+            _moments(th1, last, S1h)
+            _moments(tl1, last, S1l)
             for q in range(4):
                 Sb[q] = 0.5 * (S0[p, q] + (S1h[q] - S1l[q]))
-            _moment_dd(th0 + 0.0 * th1, th1, last, MQ, ddh)
-            _moment_dd(tl0 + 0.0 * tl1, tl1, last, MQ, ddl)
+            _moment_dd(th0 + 0.0 * th1, th1, last, ddh)
+            _moment_dd(tl0 + 0.0 * tl1, tl1, last, ddl)
             g_hi = 0.0 * Sb[0]
             g_lo = 0.0 * Sb[0]
             gR_p[:] = 0.0

@@ -65,13 +65,14 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..lattice.centreline import centreline_and_weights, stretched_volume_derivatives
+from ..lattice.centreline import (centreline_and_weights, k_stretch_weight, nodal_stretch, stretched_volume_derivatives,
+                                  stretched_volumes)
 from ..lattice.lie import cay_inv, dcay, hat
 from .rod import level_strains
 
 __all__ = ["fluid_kinetic_step", "LOCAL_SIZE", "FluidPotential", "LevelGradient", "StepTerm", "fluid_potential_step",
            "fluid_kinetic_chart", "newton_offsets", "stretch_map", "element_strains", "fluid_potential_static",
-           "fluid_kinetic_metric"]
+           "fluid_kinetic_metric", "stretched_volumes_of", "label_velocity_map", "kinetic_metric_of"]
 
 #: local unknowns of one label's kinetic contribution: s^n, r^n (4 nodes x 3), s^{n+1}, r^{n+1} (4 x 3)
 LOCAL_SIZE = 26
@@ -271,14 +272,20 @@ def element_strains(Lam, r, ds, periodic=False, period=None):
 @lru_cache(maxsize=16)
 def stretch_map(n_nodes, periodic=False):
     """The linear map T (nR x n_el, sparse) with gamma = T G: the nodal stretch of §10.3 (mean of the
-    adjacent elements; a closed end node takes its only element's).  Cached: do not modify it."""
+    adjacent elements; a closed end node takes its only element's): the entries varint.lattice.centreline.k_stretch_weight
+    of the compiled kernels.  Cached: do not modify it."""
     n_el = n_nodes if periodic else n_nodes - 1
     e = np.arange(n_el)
     rows = np.concatenate([e, (e + 1) % n_nodes])
-    vals = np.full(2 * n_el, 0.5)
-    if not periodic:
-        vals[0] = vals[-1] = 1.0  # node 0 (from element 0) and node N (from element N-1)
+    vals = np.array([k_stretch_weight(int(j), n_nodes, periodic) for j in rows])
     return sp.csr_matrix((vals, (rows, np.concatenate([e, e]))), shape=(n_nodes, n_el))
+
+
+def stretched_volumes_of(s, R, Gamma, ds, periodic=False):
+    """The parcels' stretched volumes (§10.3) at labels s, nodal radii R and element strains Gamma (n_el, 3) (a level's,
+    or the strain midpoint of a step): the nodal stretch of |Gamma_e| (varint.lattice.centreline.nodal_stretch) into
+    varint.lattice.centreline.stretched_volumes."""
+    return stretched_volumes(s, R, nodal_stretch(np.linalg.norm(Gamma, axis=1), periodic), ds, periodic)
 
 
 def _strain_jacobian(Lsum, pa, pb, ds):
@@ -656,15 +663,6 @@ def _k_labels_ok(s, n_nodes, ds, periodic, increasing, on_centreline):
 
 
 @njit(cache=True)
-def _stretch_weight(j, n_nodes, periodic):
-    """T_je for j an end node of element e: the element's share of the nodal stretch gamma_j (§10.3,
-    `stretch_map`): 1/2, but 1 at a closed tube's end nodes, which have one element only."""
-    if not periodic and (j == 0 or j == n_nodes - 1):
-        return 1.0
-    return 0.5
-
-
-@njit(cache=True)
 def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
     """`element_strains` into pa, pb, G (n_el, 3) (the rod's kernels, varint.terms.rod.k_chords and k_gamma)."""
     n = r.shape[0]
@@ -706,7 +704,7 @@ def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period)
         for i in range(3):
             ghat[e, i] /= Gn[e]
         for j in (e, (e + 1) % n):
-            gamma[j] += _stretch_weight(j, n, periodic) * Gn[e]
+            gamma[j] += k_stretch_weight(j, n, periodic) * Gn[e]
     sbar = 0.5 * (s0 + s1)
     Rbar = 0.5 * (R0 + R1)
     rbar = 0.5 * (r0 + r1)
@@ -812,7 +810,7 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
     for e in range(n_el):
         b = (e + 1) % n
         for j in (e, b):
-            dU_dG[e] += _stretch_weight(j, n, periodic) * gy[o_g + j]
+            dU_dG[e] += k_stretch_weight(j, n, periodic) * gy[o_g + j]
         # dL/dGamma^l_e = 1/2 dL/dGammabar_e = -h/2 dU/dG_e ghat_e
         for i in range(3):
             gG[i] = -0.5 * h * dU_dG[e] * ghat[e, i]
@@ -1109,7 +1107,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         t += 1
     for e in range(n_el):
         for j in (e, (e + 1) % n):
-            wj = _stretch_weight(j, n, periodic)
+            wj = k_stretch_weight(j, n, periodic)
             for l in range(12):
                 yr[t], yc[t], yv[t] = o_g + j, ecol[e, l], wj * kappa[e, l]
                 t += 1
@@ -1153,7 +1151,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         for l in range(12):
             row = ecol[e, l]
             for j in (e, (e + 1) % n):
-                rr[t], rc[t], rv[t] = row, o_g + j, _stretch_weight(j, n, periodic) * rho[e, l]
+                rr[t], rc[t], rv[t] = row, o_g + j, k_stretch_weight(j, n, periodic) * rho[e, l]
                 t += 1
             rr[t], rc[t], rv[t] = row, ny + 12 * e + l, 1.0
             t += 1
@@ -1434,17 +1432,31 @@ def fluid_kinetic_metric(s, r, mbar, ds, periodic=False, period=None):
 
     as the sparse (n_nodes 6 + M+1)^2 matrix Jx^T diag(mbar) Jx in the ordering [rod (rdot, omega) 6/node |
     sdot (M+1)] (the s block of :func:`newton_offsets`; no omega entries: the plug flow has no rotary
-    inertia, §10.0).  Returns ``(metric CSR, Jx)``, Jx (3(M+1), n) mapping velocities to the labels' Xdot.
+    inertia, §10.0).  Returns ``(metric CSR, Jx)``, Jx (3(M+1), n) mapping velocities to the labels' Xdot
+    (:func:`kinetic_metric_of` of the centreline's weights).
     """
-    n_nodes, n_lab = len(r), len(s)
     nodes, Nw, _, _, dX, _ = centreline_and_weights(s, r, ds, periodic, period)
-    k = np.repeat(np.arange(n_lab), 4)
+    return kinetic_metric_of(nodes, Nw, dX, mbar, len(r))
+
+
+def label_velocity_map(nodes, Nw, dX, n_nodes):
+    """Jx (3(M+1) x (6 n_nodes + M+1), CSR): the labels' velocities Xdot_k = sum_a N_a(s_k) rdot_a + X'(s_k) sdot_k from
+    the velocities [per node (rdot, omega) | sdot per label], for the weights ``Nw`` of nodes ``nodes`` (M+1, any number
+    per label: a Catmull-Rom stencil, or an open end's extended one folded onto the real nodes) and the tangents dX."""
+    n_lab, per = nodes.shape
+    k = np.repeat(np.arange(n_lab), per)
     rr = (3 * k[:, None] + np.arange(3)).ravel()
-    rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
-    rv = np.repeat(Nw.ravel(), 3)
+    rc = (6 * np.ravel(nodes)[:, None] + np.arange(3)).ravel()
+    rv = np.repeat(np.ravel(Nw), 3)
     lr = (3 * np.arange(n_lab)[:, None] + np.arange(3)).ravel()
     lc = np.repeat(6 * n_nodes + np.arange(n_lab), 3)
-    n = 6 * n_nodes + n_lab
-    Jx = sp.csr_matrix((np.concatenate([rv, dX.ravel()]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
-                       shape=(3 * n_lab, n))
+    return sp.csr_matrix((np.concatenate([rv, np.ravel(dX)]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
+                         shape=(3 * n_lab, 6 * n_nodes + n_lab))
+
+
+def kinetic_metric_of(nodes, Nw, dX, mbar, n_nodes):
+    """``(Jx^T diag(mbar) Jx CSR, Jx)``: the fluid's kinetic metric of :func:`fluid_kinetic_metric` from the labels'
+    weights (:func:`label_velocity_map`): the one construction, for the modes, the level energy of the coupled tube
+    (varint.run.simulation) and its open ends' (varint.run.open_ends)."""
+    Jx = label_velocity_map(nodes, Nw, dX, n_nodes)
     return (Jx.T @ sp.diags(np.repeat(np.asarray(mbar, dtype=np.float64), 3)) @ Jx).tocsr(), Jx
