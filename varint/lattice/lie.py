@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["hat", "vee", "cay", "cay_inv", "dcay", "dcay_inv", "half", "cay_batch", "cay_inv_batch",
-           "orthogonality_error", "k_hat", "k_cay", "k_cay_inv"]
+           "orthogonality_error", "k_hat", "k_cay", "k_cay_inv", "k_body"]
 
 
 def _arr(x):
@@ -82,6 +82,12 @@ def orthogonality_error(L):
 
 # ---------------------------------------------------------------------------
 # numba kernels (batched, write into preallocated outputs)
+
+
+@njit(cache=True, inline="always")
+def k_body(L, v, i):
+    """Component i of L^T v: a spatial vector v in the body frame of L (any scalar type)."""
+    return L[0, i] * v[0] + L[1, i] * v[1] + L[2, i] * v[2]
 
 
 @njit(cache=True, inline="always")

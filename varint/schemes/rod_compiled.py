@@ -56,6 +56,7 @@ from numba import njit
 from ..errors import SolverError
 from .newton import newton_damped
 from ..lattice.lie import k_cay
+from ..terms.forces import k_tip_torque
 from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_body_rows, k_chart_column, k_element, k_measure,
                          k_rod_gradient, unpack_level)
 
@@ -197,8 +198,7 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
         for i in range(6):
             D[j, i] += pin[j, i]
     # f^- of the dead tip torque: (h/2) Lambda_N^n T T in the tip's body frame (varint.terms.forces.TipTorque)
-    for i in range(3):
-        D[N, 3 + i] += 0.5 * h * (Lam_n[N, 0, i] * torque[0] + Lam_n[N, 1, i] * torque[1] + Lam_n[N, 2, i] * torque[2])
+    k_tip_torque(0.5 * h, Lam_n[N], torque, D[N, 3:])
     # the translational rows in the level-n body frames
     for j in range(N + 1):
         a0 = Lam_n[j, 0, 0] * D[j, 0] + Lam_n[j, 1, 0] * D[j, 1] + Lam_n[j, 2, 0] * D[j, 2]
@@ -556,8 +556,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
             for b in range(3):
                 L1[j, a, b] = 0.5 * (T[a, 0] * C[0, b] + T[a, 1] * C[1, b] + T[a, 2] * C[2, b])
     # f^+ of the tip torque with the new (re-orthonormalised) tip frame
-    for i in range(3):
-        D[N, 3 + i] += 0.5 * h * (L1[N, 0, i] * torque[0] + L1[N, 1, i] * torque[1] + L1[N, 2, i] * torque[2])
+    k_tip_torque(0.5 * h, L1[N], torque, D[N, 3:])
     if periodic:
         for i in range(6):
             D[0, i] += D[N, i]

@@ -37,7 +37,7 @@ from numba import njit
 
 from .forces import Declaration, TipTorque, derive_invariants
 from ..scene.initial import shape_profile
-from ..lattice.lie import cay, cay_inv, k_cay, k_cay_inv
+from ..lattice.lie import cay, cay_inv, k_body, k_cay, k_cay_inv
 
 __all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
 
@@ -609,12 +609,6 @@ def _k_mtm(A, B, out):
 # (the step's element kernel, the constraint's, the paper measure, the fluid's stretch, the energy-momentum step's
 # discrete gradient) and the NumPy functions (:func:`level_strains`) build on these.  Any scalar type (real, or
 # complex for complex steps).
-
-
-@njit(cache=True, inline="always")
-def k_body(L, d, i):
-    """Component i of L^T d: a spatial vector d in the body frame of L."""
-    return L[0, i] * d[0] + L[1, i] * d[1] + L[2, i] * d[2]
 
 
 @njit(cache=True, inline="always")
