@@ -57,8 +57,7 @@ from ..errors import SolverError
 from .newton import newton_damped
 from ..lattice.lie import k_cay
 from ..terms.forces import k_tip_torque
-from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_body_rows, k_chart_column, k_element, k_measure,
-                         k_rod_gradient, unpack_level)
+from ..terms.rod import EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_measure, k_rod_gradient, k_step_block, unpack_level
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -225,41 +224,29 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
 @njit(cache=True, error_model="numpy")
 def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku, cs, col, ab):
     """The step's exact Jacobian (Step.jacobian) in band storage ab (LAPACK layout by columns, see _k_band_lu), band
-    order.  Column k of element e's block: the complex step of the analytic element gradient D1 (``k_element``) in the
-    chart u = (b_a, xi_a, b_b, xi_b) (``k_chart_column``), translational rows in the level-n body frames
-    (``k_body_rows``): the loop of varint.terms.rod._k_step_blocks, assembled in place.  ``cs``: complex scratch
-    (varint.terms.rod._element_scratch layout, then ra, rb, xa, xb, qa, qb).  Returns False if not finite."""
+    order: each element's block (``varint.terms.rod.k_step_block``: the complex step of the analytic element gradient
+    in the chart u = (b_a, xi_a, b_b, xi_b), translational rows in the level-n body frames; the stepper's own blocks),
+    assembled in place.  ``cs``: complex scratch (varint.terms.rod._element_scratch layout, then ra, rb, xa, xb, qa,
+    qb); ``col`` (>= 12) real scratch.  Returns False if not finite."""
     N = Lam_n.shape[0] - 1
-    M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
-    ra, rb, xa, xb, qa, qb = cs[6], cs[7], cs[8], cs[9], cs[10], cs[11]
     kv = kl + ku
     ab[:, :] = 0.0
-    inv = 1.0 / EPS_CS
+    blk = np.empty((12, 12))
     ok = True
     for e in range(N):
-        for i in range(3):
-            ra[i] = r_n[e, i]
-            rb[i] = r_n[e + 1, i]
-            for m in range(3):
-                La[i, m] = Lam_n[e, i, m]
-                Lb[i, m] = Lam_n[e + 1, i, m]
+        k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, cmask, EPS_CS, cs, col[:12], blk)
         for k in range(12):
             if not cmask[e + k // 6, k % 6]:
                 continue
             kc = idx[e + k // 6, k % 6]
             if kc < 0:
                 continue
-            k_chart_column(Lam_n, xi, r_1, e, k, EPS_CS, xa, xb, qa, qb)
-            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0.0, 0, 1, e1, e2, M, V)
-            for i in range(12):
-                col[12 + i] = e1[i].imag * inv
-            k_body_rows(Lam_n, e, col[12:], col[:12])
             pc = bpos[kc]
             for a in range(12):
                 ka = idx[e + a // 6, a % 6]
                 if ka < 0:
                     continue
-                v = col[a]
+                v = blk[a, k]
                 if not np.isfinite(v):
                     ok = False
                 ab[pc, kv + bpos[ka] - pc] += v

@@ -1025,16 +1025,22 @@ def k_body_rows(Lam_n, e, col, out):
 
 
 @njit(cache=True, inline="always")
-def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
-    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
-    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
-    (both-level) blocks."""
+def k_load_element(Lam, r, e, La, Lb, ra, rb):
+    """Element e's frames and positions copied into La, Lb, ra, rb (the complex steps' scratch)."""
     for i in range(3):
         ra[i] = r[e, i]
         rb[i] = r[e + 1, i]
         for m in range(3):
             La[i, m] = Lam[e, i, m]
             Lb[i, m] = Lam[e + 1, i, m]
+
+
+@njit(cache=True, inline="always")
+def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
+    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
+    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
+    (both-level) blocks."""
+    k_load_element(Lam, r, e, La, Lb, ra, rb)
     d = k % 3
     if k < 3:
         ra[d] += 1j * eps
@@ -1051,9 +1057,33 @@ def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
         _k_mm(Lc, C, La if k < 6 else Lb)
 
 
+@njit(cache=True, inline="always")
+def k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, mask, eps, cs, col, out):
+    """Element e's Newton block of the step residual: out[:, k] = d(rotated D1 of element e)/d u_k (12 x 12), u = (b_a,
+    xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b, by complex step of the analytic gradient (``k_element`` in the chart of
+    ``k_chart_column``; the translational rows in the level-n body frames, ``k_body_rows``): exact to round-off.
+    Columns of unknowns off the ``mask`` (N+1, 6) are zero.  ``cs``: complex scratch (M, V, e1, e2, La, Lb, ra, rb, xa,
+    xb, qa, qb; ``_element_scratch`` and six 3-vectors), ``col`` (12) real scratch.  The one block of the stepper's
+    Jacobian (``_k_step_blocks``) and of the compiled rod step's exact band Jacobian (varint.schemes.rod_compiled)."""
+    M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
+    ra, rb, xa, xb, qa, qb = cs[6], cs[7], cs[8], cs[9], cs[10], cs[11]
+    inv = 1.0 / eps
+    k_load_element(Lam_n, r_n, e, La, Lb, ra, rb)
+    for k in range(12):
+        if not mask[e + k // 6, k % 6]:
+            for i in range(12):
+                out[i, k] = 0.0
+            continue
+        k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
+        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0.0, 0, 1, e1, e2, M, V)
+        for i in range(12):
+            col[i] = e1[i].imag * inv
+        k_body_rows(Lam_n, e, col, out[:, k])
+
+
 @njit(cache=True)
 def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
-    """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
+    """Newton blocks of the step residual: blocks[e] = :func:`k_step_block` of element e.
 
     u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
     frame of their node (as the stepper's residual rows: varint.terms.step.RodElements).  By complex step of the analytic
@@ -1062,31 +1092,11 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
     N = Lam_n.shape[0] - 1
     c = np.complex128
     M, V, e1, e2, La, Lb = _element_scratch()
-    ra = np.empty(3, c)
-    rb = np.empty(3, c)
-    xa = np.empty(3, c)
-    xb = np.empty(3, c)
-    qa = np.empty(3, c)
-    qb = np.empty(3, c)
+    cs = (M, V, e1, e2, La, Lb, np.empty(3, c), np.empty(3, c), np.empty(3, c), np.empty(3, c), np.empty(3, c),
+          np.empty(3, c))
     col = np.empty(12)
-    inv = 1.0 / eps
     for e in range(N):
-        for i in range(3):
-            ra[i] = r_n[e, i]
-            rb[i] = r_n[e + 1, i]
-            for m in range(3):
-                La[i, m] = Lam_n[e, i, m]
-                Lb[i, m] = Lam_n[e + 1, i, m]
-        for k in range(12):
-            if not mask[e + k // 6, k % 6]:
-                for i in range(12):
-                    blocks[e, i, k] = 0.0
-                continue
-            k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
-            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0.0, 0, 1, e1, e2, M, V)
-            for i in range(12):
-                col[i] = e1[i].imag * inv
-            k_body_rows(Lam_n, e, col, blocks[e, :, k])
+        k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, mask, eps, cs, col, blocks[e])
 
 
 @njit(cache=True)

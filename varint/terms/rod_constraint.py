@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from ..lattice.lie import k_cay
-from .rod import CHI, k_body_rows, k_chart_column, k_chords, k_gamma_mid, _k_config_column, _k_mm
+from .rod import CHI, k_body_rows, k_chart_column, k_chords, k_gamma_mid, k_load_element, _k_config_column, _k_mm
 
 __all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -142,13 +142,9 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_l
     col = np.empty(12)
     inv = 1.0 / eps
     for e in range(N):
+        k_load_element(Lam_n, r_n, e, La0, Lb0, ra0, rb0)
         for i in range(3):
-            ra0[i] = r_n[e, i]
-            rb0[i] = r_n[e + 1, i]
             lc[i] = lam[e, i]
-            for m in range(3):
-                La0[i, m] = Lam_n[e, i, m]
-                Lb0[i, m] = Lam_n[e + 1, i, m]
         for k in range(12):
             if not mask[e + k // 6, k % 6]:
                 for i in range(12):
