@@ -624,7 +624,7 @@ from numba import njit  # noqa: E402
 
 from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
 from ..lattice.lie import k_hat  # noqa: E402
-from .rod import k_chords, k_gamma  # noqa: E402
+from .rod import k_chords, k_gamma, k_strain_gradient  # noqa: E402
 
 _EPS = np.finfo(float).eps
 
@@ -729,22 +729,13 @@ def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period)
 
 
 @njit(cache=True)
-def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds):
-    """`_rod_gradient` of one element: A_e^T gG into nodes a, b of out (n_nodes, 6)."""
-    c = 0.5 / ds
-    for i in range(3):
-        f = 0.0
-        for k in range(3):
-            f += (Lam[a, i, k] + Lam[b, i, k]) * gG[k]
-        out[a, i] -= c * f
-        out[b, i] += c * f
-    # gG x p: the sigma rows (dGamma/dsigma = hat(p)/(2 ds), hat(p)^T gG = gG x p)
-    out[a, 3] += c * (gG[1] * pa[2] - gG[2] * pa[1])
-    out[a, 4] += c * (gG[2] * pa[0] - gG[0] * pa[2])
-    out[a, 5] += c * (gG[0] * pa[1] - gG[1] * pa[0])
-    out[b, 3] += c * (gG[1] * pb[2] - gG[2] * pb[1])
-    out[b, 4] += c * (gG[2] * pb[0] - gG[0] * pb[2])
-    out[b, 5] += c * (gG[0] * pb[1] - gG[1] * pb[0])
+def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds, d12):
+    """`_rod_gradient` of one element: A_e^T gG (varint.terms.rod.k_strain_gradient, into the scratch d12) added into
+    nodes a, b of out (n_nodes, 6)."""
+    k_strain_gradient(Lam[a], Lam[b], pa, pb, gG, ds, d12)
+    for i in range(6):
+        out[a, i] += d12[i]
+        out[b, i] += d12[6 + i]
 
 
 @njit(cache=True)
@@ -807,6 +798,7 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
     rod0 = np.zeros((n, 6))
     rod1 = np.zeros((n, 6))
     gG = np.empty(3)
+    d12 = np.empty(12)
     for e in range(n_el):
         b = (e + 1) % n
         for j in (e, b):
@@ -814,8 +806,8 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
         # dL/dGamma^l_e = 1/2 dL/dGammabar_e = -h/2 dU/dG_e ghat_e
         for i in range(3):
             gG[i] = -0.5 * h * dU_dG[e] * ghat[e, i]
-        _add_rod_gradient(rod0, Lam0, pa0[e], pb0[e], e, b, gG, ds)
-        _add_rod_gradient(rod1, Lam1, pa1[e], pb1[e], e, b, gG, ds)
+        _add_rod_gradient(rod0, Lam0, pa0[e], pb0[e], e, b, gG, ds, d12)
+        _add_rod_gradient(rod1, Lam1, pa1[e], pb1[e], e, b, gG, ds, d12)
     Ds = np.empty(n_lab)
     for k in range(n_lab):
         Ds[k] = -0.5 * h * gy[k]

@@ -650,6 +650,36 @@ def k_element_strains(La, Lb, d, ds, T, pa, pb, G, a, om):
 
 
 @njit(cache=True, inline="always")
+def k_strain_gradient(La, Lb, pa, pb, gG, ds, D):
+    """D (12) = A^T gG: the gradient, in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial, Lambda ->
+    Lambda cay(sigma)), of a function of the element's Gamma at that level whose Gamma-derivative is gG:
+    dGamma/ddr_b = -dGamma/ddr_a = (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into
+    p + p x sigma), so the sigma rows are gG x p / (2 ds).  The rod's element kernel, the constraint's and the fluid's
+    stretch force (varint.terms.coupled) all use it."""
+    for i in range(3):
+        f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+        D[i] = -f
+        D[6 + i] = f
+    D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds)
+    D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds)
+    D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds)
+    D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds)
+    D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds)
+    D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds)
+
+
+@njit(cache=True, inline="always")
+def k_strain_gradients(L0a, L0b, L1a, L1b, pa0, pb0, pa1, pb1, gG, ds, lev_lo, lev_hi, D1, D2):
+    """:func:`k_strain_gradient` of a function of the strain midpoint at the levels lev_lo <= level < lev_hi: level n
+    (frames L0a, L0b, chords pa0, pb0) into D1, level n+1 into D2; gG is its derivative in either level's Gamma."""
+    for lev in range(lev_lo, lev_hi):
+        if lev == 0:
+            k_strain_gradient(L0a, L0b, pa0, pb0, gG, ds, D1)
+        else:
+            k_strain_gradient(L1a, L1b, pa1, pb1, gG, ds, D2)
+
+
+@njit(cache=True, inline="always")
 def k_strains_row(Lam, r, ds, periodic, period, Om, Ga, pa, pb, a, c, T, d, om):
     """:func:`k_element_strains` of every element of a lattice: Lam (n, 3, 3), r (n, 3); elements (e, e + 1), and on a
     periodic lattice of n distinct nodes also (n - 1, 0) with the period (3,) added to its chord.  Writes Om (=
@@ -891,29 +921,23 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         if paper:
             gG[i] += h * ds * P * 0.5 * Gb[i] / mu
         gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
+    # the strains' share (k_strain_gradients); gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2, and the velocities
+    k_strain_gradients(L0a, L0b, L1a, L1b, pa0, pb0, pa1, pb1, gG, ds, lev_lo, lev_hi, D1, D2)
     for lev in range(lev_lo, lev_hi):
         D = D1 if lev == 0 else D2
-        La = L0a if lev == 0 else L1a
-        Lb = L0b if lev == 0 else L1b
         om = om0 if lev == 0 else om1
-        pa = pa0 if lev == 0 else pa1
-        pb = pb0 if lev == 0 else pb1
         sgn = -1.0 if lev == 0 else 1.0
         for i in range(3):
-            # Gamma = (La + Lb)^T (rb - ra) / (2 ds);  gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2
-            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
-            D[i] = -f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
-            D[6 + i] = f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
-        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds);  domega = -dcay^-1_om sigma
+            D[i] = D[i] + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
+            D[6 + i] = D[6 + i] + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
+        # sigma_a: domega = -dcay^-1_om sigma
         _k_dcinvT(om, gw, 1.0, tmp)
-        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds) - tmp[0]
-        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds) - tmp[1]
-        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds) - tmp[2]
+        for i in range(3):
+            D[3 + i] = D[3 + i] - tmp[i]
         # sigma_b: domega = dcay^-1_{-om} sigma
         _k_dcinvT(om, gw, -1.0, tmp)
-        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds) + tmp[0]
-        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds) + tmp[1]
-        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds) + tmp[2]
+        for i in range(3):
+            D[9 + i] = D[9 + i] + tmp[i]
         # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
         _k_dcinvT(xia, Ixa, -sgn, tmp)
         for i in range(3):
