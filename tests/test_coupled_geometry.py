@@ -298,3 +298,31 @@ def test_moment_kernels_are_the_element_integrals():
         v = k_piece_volume(R[0], R[1], 1.0, 1.0, S - Sl, ds)
         F = volume_below(np.array([lo, hi]) * ds, R, ds)
         assert v == pytest.approx(F[1] - F[0], rel=1e-14)
+
+
+def test_whole_element_volume_is_the_piece_volume_over_the_element():
+    """k_whole_element (the tube's volume under the external pressure, its gradient and Hessian, for the coupled
+    kernels and their numpy reference) is k_piece_volume over [0, 1], and its derivatives those of that polynomial."""
+    from varint.lattice.centreline import k_moments, k_piece_volume, k_whole_element
+
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.5, 1.5, 4)
+    S = np.empty(4)
+    k_moments(1.0, S)
+    w = k_whole_element(*x)
+    assert w[0] == pytest.approx(12 * k_piece_volume(*x, S, 1.0) / np.pi, rel=1e-14)
+    f = lambda y: k_whole_element(*y)[0]  # noqa: E731
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = 1e-6
+        assert w[1 + i] == pytest.approx((f(x + e) - f(x - e)) / 2e-6, rel=1e-8)
+    H = np.zeros((4, 4))
+    H[0, 0], H[1, 1], H[0, 1], H[0, 2], H[0, 3], H[1, 2], H[1, 3] = w[5:]
+    H = H + np.triu(H, 1).T
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = 1e-5
+        gp, gm = np.array(k_whole_element(*(x + e))[1:5]), np.array(k_whole_element(*(x - e))[1:5])
+        assert np.allclose((gp - gm) / 2e-5, H[i], rtol=1e-7, atol=1e-9)
+    arr = k_whole_element(*(np.stack([x, x + 0.1]).T))  # elementwise on arrays (the numpy reference's use)
+    assert arr[0][0] == pytest.approx(w[0], rel=1e-15)

@@ -313,6 +313,19 @@ def _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl):
     return (t0 if e == e0 else 0.0), (t1 if e == e1 else 1.0)
 
 
+@njit(cache=True, inline="always")
+def k_whole_element(a, b, ga, gb):
+    """The whole element's stretched volume (:func:`k_piece_volume` over [0, 1]) times 12 / (ds pi),
+    ga (3a^2 + 2ab + b^2) + gb (a^2 + 2ab + 3b^2), with its first derivatives in (a, b, ga, gb) and its second ones
+    (a a, b b, a b, a ga, a gb, b ga, b gb; the rest vanish), for end radii a, b and stretches ga, gb: the tube's volume
+    under the external pressure (varint.terms.coupled).  Scalars or arrays (elementwise)."""
+    fa = 3 * a * a + 2 * a * b + b * b
+    fb = a * a + 2 * a * b + 3 * b * b
+    return (ga * fa + gb * fb, ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b), ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b),
+            fa, fb, 6 * ga + 2 * gb, 2 * ga + 6 * gb, 2 * ga + 2 * gb, 6 * a + 2 * b, 2 * a + 2 * b, 2 * a + 2 * b,
+            2 * a + 6 * b)
+
+
 @njit(cache=True)
 def _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml):
     """V_k of the parcel [s_k, s_{k+1}]: its pieces on the elements it covers (:func:`k_piece_volume`)."""

@@ -159,7 +159,7 @@ def tube_volume(R, ds, periodic):
     """Exact volume of the whole tube and its gradient and (tridiagonal) Hessian in R."""
     a = R if periodic else R[:-1]
     b = np.roll(R, -1) if periodic else R[1:]
-    vol = ds * math.pi * np.sum(a * a + a * b + b * b) / 3.0
+    vol = float(np.sum(_full(a, b, ds)))  # the kernels' whole element, on the arrays
     grad = np.zeros_like(R)
     ga = ds * math.pi * (2 * a + b) / 3.0
     gb = ds * math.pi * (a + 2 * b) / 3.0

@@ -65,8 +65,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..lattice.centreline import (centreline_and_weights, k_stretch_weight, nodal_stretch, stretched_volume_derivatives,
-                                  stretched_volumes)
+from ..lattice.centreline import (centreline_and_weights, k_stretch_weight, k_whole_element, nodal_stretch,
+                                  stretched_volume_derivatives, stretched_volumes)
 from ..lattice.lie import cay_inv, dcay, hat
 from .rod import level_strains
 
@@ -352,18 +352,15 @@ def _potential_in_y(fp, sbar, Rbar, gamma, mu, want_hessian):
         # Vol = sum_e ds pi/12 [gamma_a (3a^2 + 2ab + b^2) + gamma_b (a^2 + 2ab + 3b^2)]: G_e(1) of
         # varint/lattice/centreline.py, the whole element (§10.3)
         ia, ib, _ = _topology(nR, fp.periodic, fp.ds, None)
-        a, b, ga, gb = Rbar[ia], Rbar[ib], gamma[ia], gamma[ib]
+        w = k_whole_element(Rbar[ia], Rbar[ib], gamma[ia], gamma[ib])
         c = fp.p_ext * fp.ds * np.pi / 12.0
-        U += float(np.sum(c * (ga * (3 * a * a + 2 * a * b + b * b) + gb * (a * a + 2 * a * b + 3 * b * b))))
+        U += float(np.sum(c * w[0]))
         iR_a, iR_b, ig_a, ig_b = o_R + ia, o_R + ib, o_g + ia, o_g + ib
-        grad += _scatter(np.concatenate([iR_a, iR_b, ig_a, ig_b]),
-                         np.concatenate([c * (ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b)),
-                                         c * (ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b)),
-                                         c * (3 * a * a + 2 * a * b + b * b), c * (a * a + 2 * a * b + 3 * b * b)]), ny)
+        grad += _scatter(np.concatenate([iR_a, iR_b, ig_a, ig_b]), np.concatenate([c * w[1], c * w[2], c * w[3], c * w[4]]),
+                         ny)
         if want_hessian:
-            pairs = [(iR_a, iR_a, 6 * ga + 2 * gb), (iR_b, iR_b, 2 * ga + 6 * gb), (iR_a, iR_b, 2 * ga + 2 * gb),
-                     (iR_a, ig_a, 6 * a + 2 * b), (iR_a, ig_b, 2 * a + 2 * b),
-                     (iR_b, ig_a, 2 * a + 2 * b), (iR_b, ig_b, 2 * a + 6 * b)]
+            pairs = [(iR_a, iR_a, w[5]), (iR_b, iR_b, w[6]), (iR_a, iR_b, w[7]), (iR_a, ig_a, w[8]), (iR_a, ig_b, w[9]),
+                     (iR_b, ig_a, w[10]), (iR_b, ig_b, w[11])]
             for i, j, v in pairs:
                 rows += [i] if i is j else [i, j]
                 cols += [j] if i is j else [j, i]
@@ -788,12 +785,12 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
         for e in range(nR if periodic else nR - 1):
             ja = e
             jb = (e + 1) % nR
-            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
-            U += c * (ga * (3 * a * a + 2 * a * b + b * b) + gb * (a * a + 2 * a * b + 3 * b * b))
-            gy[o_R + ja] += c * (ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b))
-            gy[o_R + jb] += c * (ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b))
-            gy[o_g + ja] += c * (3 * a * a + 2 * a * b + b * b)
-            gy[o_g + jb] += c * (a * a + 2 * a * b + 3 * b * b)
+            w = k_whole_element(Rbar[ja], Rbar[jb], gamma[ja], gamma[jb])
+            U += c * w[0]
+            gy[o_R + ja] += c * w[1]
+            gy[o_R + jb] += c * w[2]
+            gy[o_g + ja] += c * w[3]
+            gy[o_g + jb] += c * w[4]
     dU_dG = np.zeros(n_el)
     rod0 = np.zeros((n, 6))
     rod1 = np.zeros((n, 6))
@@ -985,18 +982,13 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         for e in range(n_pe):
             ja = e
             jb = (e + 1) % nR
-            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
+            w = k_whole_element(Rbar[ja], Rbar[jb], gamma[ja], gamma[jb])
             iRa, iRb, iga, igb = o_R + ja, o_R + jb, o_g + ja, o_g + jb
             # (R_a, R_a), (R_b, R_b) once; the off-diagonal pairs both ways (`_potential_in_y`)
             pr = (iRa, iRb, iRa, iRb, iRa, iga, iRa, igb, iRb, iga, iRb, igb)
             pc = (iRa, iRb, iRb, iRa, iga, iRa, igb, iRa, iga, iRb, igb, iRb)
-            v_ab = c * (2 * ga + 2 * gb)
-            v_aga = c * (6 * a + 2 * b)
-            v_agb = c * (2 * a + 2 * b)
-            v_bga = c * (2 * a + 2 * b)
-            v_bgb = c * (2 * a + 6 * b)
-            pv = (c * (6 * ga + 2 * gb), c * (2 * ga + 6 * gb), v_ab, v_ab, v_aga, v_aga, v_agb, v_agb,
-                  v_bga, v_bga, v_bgb, v_bgb)
+            pv = (c * w[5], c * w[6], c * w[7], c * w[7], c * w[8], c * w[8], c * w[9], c * w[9], c * w[10], c * w[10],
+                  c * w[11], c * w[11])
             for q in range(12):
                 hr[t] = pr[q]
                 hc[t] = pc[q]
