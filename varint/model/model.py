@@ -202,14 +202,19 @@ class Model:
             u[0] = t.U_in  # the inlet's piston
         if t.periodic:
             u[-1] = u[0]
+        from ..terms.coupled import label_velocity_map
+
         nodes, Nw, dNw, X, dX, _ = self.centreline(cfg.s, rod.r0)
         sdot = u / np.linalg.norm(dX, axis=1)
         v_nodes = rod.v0 * rod.mask[:, :3]  # a held node does not move, whatever rod.initial.velocity says
-        Xdot = np.einsum("ka,kac->kc", Nw, v_nodes[nodes]) + dX * sdot[:, None]
+        # the kinetic metric's map (the one construction, varint.terms.coupled): Xdot = Jx vel, p = Jx^T mbar Xdot
+        n1 = rod.N + 1
+        Jx = label_velocity_map(nodes, Nw, dX, n1)
+        vel = np.concatenate([np.concatenate([v_nodes, np.zeros((n1, 3))], axis=1).ravel(), sdot])
+        Xdot = (Jx @ vel).reshape(-1, 3)
         mbar = t.label_mass_all
-        rod_p = np.zeros((rod.N + 1, 3))
-        np.add.at(rod_p, nodes.ravel(), ((mbar[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))
-        return {"rod_p": rod_p, "label_p": mbar * np.sum(Xdot * dX, axis=1), "sdot": sdot, "Xdot": Xdot,
+        p = Jx.T @ (np.repeat(mbar, 3) * Xdot.ravel())
+        return {"rod_p": p[:6 * n1].reshape(n1, 6)[:, :3].copy(), "label_p": p[6 * n1:], "sdot": sdot, "Xdot": Xdot,
                 "kinetic": 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))}
 
     @property
