@@ -167,6 +167,15 @@ def k_fold_ghost(slot, w):
     w[slot] = GHOST[2] * x
 
 
+@njit(cache=True, inline="always")
+def k_stencil_point(r, node, e, i, n_nodes, periodic, period, d):
+    """Component d of the position of entry i of element e's stencil (its node ``node``): r_node, and on a periodic
+    tube the period (3,) times the wraps of the unwrapped node e - 1 + i (r_{j+N} = r_j + period)."""
+    if periodic:
+        return r[node, d] + ((e - 1 + i) // n_nodes) * period[d]
+    return r[node, d]
+
+
 @njit(cache=True)
 def k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
     n_el = n_nodes if periodic else n_nodes - 1

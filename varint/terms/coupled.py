@@ -619,7 +619,7 @@ def _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, ne
 
 from numba import njit  # noqa: E402
 
-from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
+from ..lattice.centreline import k_centreline_weights, k_stencil_point, k_stretched_derivatives  # noqa: E402
 from ..lattice.lie import k_hat  # noqa: E402
 from .rod import k_chords, k_gamma, k_strain_gradient  # noqa: E402
 
@@ -752,9 +752,8 @@ def _centreline_points(s, r, ds, periodic, period):
             dX[k, d] = 0.0
             d2X[k, d] = 0.0
         for i in range(4):
-            wrap = (e - 1 + i) // n if periodic else 0
             for d in range(3):
-                p = r[nodes[k, i], d] + wrap * period[d]
+                p = k_stencil_point(r, nodes[k, i], e, i, n, periodic, period, d)
                 X[k, d] += N[k, i] * p
                 dX[k, d] += dN[k, i] * p
                 d2X[k, d] += d2N[k, i] * p

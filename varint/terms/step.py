@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-from ..lattice.centreline import k_centreline_weights
+from ..lattice.centreline import k_centreline_weights, k_stencil_point
 
 __all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements",
            "RodConstraint", "CoupledFluid"]
@@ -93,24 +93,20 @@ def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, r
     k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
     D = np.empty(3)
     c = np.empty(3)
+    r1 = r0 + dr
     for q in range(m):
         e0 = int(math.floor(s0[q] / ds))
         e1 = int(math.floor(s1[q] / ds))
-        w = (e0 // n) if periodic else 0
         for d in range(3):
-            c[d] = r0[nodes0[q, 1], d] + w * period[d]
+            c[d] = k_stencil_point(r0, nodes0[q, 1], e0, 1, n, periodic, period, d)
         for d in range(3):
             inc = 0.0
             b1 = 0.0
             b0 = 0.0
             for i in range(4):
-                a1 = nodes1[q, i]
-                a0 = nodes0[q, i]
-                w1 = ((e1 - 1 + i) // n) if periodic else 0
-                w0 = ((e0 - 1 + i) // n) if periodic else 0
-                inc += N1[q, i] * dr[a1, d]
-                b1 += N1[q, i] * ((r0[a1, d] + w1 * period[d]) - c[d])
-                b0 += N0[q, i] * ((r0[a0, d] + w0 * period[d]) - c[d])
+                inc += N1[q, i] * dr[nodes1[q, i], d]
+                b1 += N1[q, i] * (k_stencil_point(r0, nodes1[q, i], e1, i, n, periodic, period, d) - c[d])
+                b0 += N0[q, i] * (k_stencil_point(r0, nodes0[q, i], e0, i, n, periodic, period, d) - c[d])
             D[d] = inc + (b1 - b0)
         cm = mbar[q] / h
         x0 = 0.0
@@ -119,14 +115,10 @@ def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, r
             t0 = 0.0
             t1 = 0.0
             for i in range(4):
-                a1 = nodes1[q, i]
-                a0 = nodes0[q, i]
-                w1 = ((e1 - 1 + i) // n) if periodic else 0
-                w0 = ((e0 - 1 + i) // n) if periodic else 0
-                t0 += dN0[q, i] * (r0[a0, d] + w0 * period[d])
-                t1 += dN1[q, i] * ((r0[a1, d] + dr[a1, d]) + w1 * period[d])
-                rod0[a0, d] -= cm * N0[q, i] * D[d]
-                rod1[a1, d] += cm * N1[q, i] * D[d]
+                t0 += dN0[q, i] * k_stencil_point(r0, nodes0[q, i], e0, i, n, periodic, period, d)
+                t1 += dN1[q, i] * k_stencil_point(r1, nodes1[q, i], e1, i, n, periodic, period, d)
+                rod0[nodes0[q, i], d] -= cm * N0[q, i] * D[d]
+                rod1[nodes1[q, i], d] += cm * N1[q, i] * D[d]
             x0 += D[d] * t0
             x1 += D[d] * t1
         g0[q] = -cm * x0
