@@ -120,14 +120,13 @@ def k_cay_inv(L, a, out):
     """out = cay^-1(L) = 2 a / c for one L (3, 3) (any scalar type): :func:`cay_inv` of the compiled kernels, with
     ``a`` (3) receiving the axial vector of L - L^T (unhalved) and c = 1 + tr L returned (the two pieces the
     energy-momentum discrete gradient differentiates, varint.schemes.em_rod).  ``a`` may be ``out``."""
-    a[0] = L[2, 1] - L[1, 2]
-    a[1] = L[0, 2] - L[2, 0]
-    a[2] = L[1, 0] - L[0, 1]
+    a0 = L[2, 1] - L[1, 2]
+    a1 = L[0, 2] - L[2, 0]
+    a2 = L[1, 0] - L[0, 1]
     c = 1.0 + L[0, 0] + L[1, 1] + L[2, 2]
     f = 2.0 / c
-    out[0] = f * a[0]
-    out[1] = f * a[1]
-    out[2] = f * a[2]
+    a[0], a[1], a[2] = a0, a1, a2
+    out[0], out[1], out[2] = f * a0, f * a1, f * a2
     return c
 
 

@@ -385,14 +385,14 @@ class RodPart:
         if not elastic:
             J, K = np.zeros(3), np.zeros(3)
         f8 = np.float64
-        Lam_n, r_n, xi = (np.ascontiguousarray(x, dtype=f8) for x in (Lam_n, r_n, xi))
+        Lam_n = np.ascontiguousarray(Lam_n, dtype=f8)
+        r_n = np.ascontiguousarray(r_n, dtype=f8)
         dr = np.ascontiguousarray(np.asarray(r_1, dtype=f8) - r_n if dr is None else dr, dtype=f8)
         D1 = np.zeros((self.N + 1, 6))
         D2 = np.zeros((self.N + 1, 6))
         try:
-            L = k_rod_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure, Lam_n, r_n, xi, dr,
-                               levels[0], levels[1], D1, D2, np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12),
-                               np.empty(12))
+            L = _k_rod_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure, Lam_n, r_n,
+                                np.ascontiguousarray(xi, dtype=f8), dr, levels[0], levels[1], D1, D2)
         except ZeroDivisionError:
             # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
             # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
@@ -650,22 +650,32 @@ def k_element_strains(La, Lb, d, ds, T, pa, pb, G, a, om):
 
 
 @njit(cache=True, inline="always")
+def k_strain_force(La, Lb, pa, pb, gG, ds):
+    """A^T gG: the gradient, in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial, Lambda -> Lambda
+    cay(sigma)), of a function of the element's Gamma at that level whose Gamma-derivative is gG, as three 3-tuples
+    (f, sa, sb): the dr_a rows are -f, the dr_b rows f, the sigma rows sa, sb.  dGamma/ddr_b = -dGamma/ddr_a =
+    (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into p + p x sigma), so sa = gG x pa /
+    (2 ds).  (Returned in registers: the rod's element kernel adds its other pieces before it stores a row.)"""
+    f = (((La[0, 0] + Lb[0, 0]) * gG[0] + (La[0, 1] + Lb[0, 1]) * gG[1] + (La[0, 2] + Lb[0, 2]) * gG[2]) / (2.0 * ds),
+         ((La[1, 0] + Lb[1, 0]) * gG[0] + (La[1, 1] + Lb[1, 1]) * gG[1] + (La[1, 2] + Lb[1, 2]) * gG[2]) / (2.0 * ds),
+         ((La[2, 0] + Lb[2, 0]) * gG[0] + (La[2, 1] + Lb[2, 1]) * gG[1] + (La[2, 2] + Lb[2, 2]) * gG[2]) / (2.0 * ds))
+    sa = ((gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds), (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds),
+          (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds))
+    sb = ((gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds), (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds),
+          (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds))
+    return f, sa, sb
+
+
+@njit(cache=True, inline="always")
 def k_strain_gradient(La, Lb, pa, pb, gG, ds, D):
-    """D (12) = A^T gG: the gradient, in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial, Lambda ->
-    Lambda cay(sigma)), of a function of the element's Gamma at that level whose Gamma-derivative is gG:
-    dGamma/ddr_b = -dGamma/ddr_a = (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into
-    p + p x sigma), so the sigma rows are gG x p / (2 ds).  The rod's element kernel, the constraint's and the fluid's
-    stretch force (varint.terms.coupled) all use it."""
+    """D (12) = A^T gG (:func:`k_strain_force`) in the layout [dr_a, sigma_a, dr_b, sigma_b]: the constraint's element
+    kernel and the fluid's stretch force (varint.terms.coupled)."""
+    f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds)
     for i in range(3):
-        f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
-        D[i] = -f
-        D[6 + i] = f
-    D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds)
-    D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds)
-    D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds)
-    D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds)
-    D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds)
-    D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds)
+        D[i] = -f[i]
+        D[3 + i] = sa[i]
+        D[6 + i] = f[i]
+        D[9 + i] = sb[i]
 
 
 @njit(cache=True, inline="always")
@@ -921,23 +931,31 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         if paper:
             gG[i] += h * ds * P * 0.5 * Gb[i] / mu
         gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
-    # the strains' share (k_strain_gradients); gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2, and the velocities
-    k_strain_gradients(L0a, L0b, L1a, L1b, pa0, pb0, pa1, pb1, gG, ds, lev_lo, lev_hi, D1, D2)
     for lev in range(lev_lo, lev_hi):
         D = D1 if lev == 0 else D2
         om = om0 if lev == 0 else om1
         sgn = -1.0 if lev == 0 else 1.0
-        for i in range(3):
-            D[i] = D[i] + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
-            D[6 + i] = D[6 + i] + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
+        # the strains' share (k_strain_force); gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2, and the velocities
+        if lev == 0:
+            (f0, f1, f2), (sa0, sa1, sa2), (sb0, sb1, sb2) = k_strain_force(L0a, L0b, pa0, pb0, gG, ds)
+        else:
+            (f0, f1, f2), (sa0, sa1, sa2), (sb0, sb1, sb2) = k_strain_force(L1a, L1b, pa1, pb1, gG, ds)
+        D[0] = -f0 + c * (0.25 * rhoA * g[0] + sgn * 0.5 * rhoA * (r1a[0] - r0a[0]) * ih2)
+        D[1] = -f1 + c * (0.25 * rhoA * g[1] + sgn * 0.5 * rhoA * (r1a[1] - r0a[1]) * ih2)
+        D[2] = -f2 + c * (0.25 * rhoA * g[2] + sgn * 0.5 * rhoA * (r1a[2] - r0a[2]) * ih2)
+        D[6] = f0 + c * (0.25 * rhoA * g[0] + sgn * 0.5 * rhoA * (r1b[0] - r0b[0]) * ih2)
+        D[7] = f1 + c * (0.25 * rhoA * g[1] + sgn * 0.5 * rhoA * (r1b[1] - r0b[1]) * ih2)
+        D[8] = f2 + c * (0.25 * rhoA * g[2] + sgn * 0.5 * rhoA * (r1b[2] - r0b[2]) * ih2)
         # sigma_a: domega = -dcay^-1_om sigma
         _k_dcinvT(om, gw, 1.0, tmp)
-        for i in range(3):
-            D[3 + i] = D[3 + i] - tmp[i]
+        D[3] = sa0 - tmp[0]
+        D[4] = sa1 - tmp[1]
+        D[5] = sa2 - tmp[2]
         # sigma_b: domega = dcay^-1_{-om} sigma
         _k_dcinvT(om, gw, -1.0, tmp)
-        for i in range(3):
-            D[9 + i] = D[9 + i] + tmp[i]
+        D[9] = sb0 + tmp[0]
+        D[10] = sb1 + tmp[1]
+        D[11] = sb2 + tmp[2]
         # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
         _k_dcinvT(xia, Ixa, -sgn, tmp)
         for i in range(3):
@@ -975,10 +993,11 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
             if lev_hi == 2:
                 D2[j, i] = 0.0
     za, rb0, rb1, dlt = V[16], V[17], V[18], V[19]
+    for i in range(3):
+        za[i] = 0.0  # (the element kernel's scratch is rows 0-15)
     L = 0.0
     for e in range(N):
         for i in range(3):
-            za[i] = 0.0
             rb0[i] = r_n[e + 1, i] - r_n[e, i]
             rb1[i] = rb0[i] + dr[e + 1, i]
             dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
@@ -986,8 +1005,9 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
         val, c = k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1],
                            dr[e], rb1, g0, lev_lo, lev_hi, e1, e2, M, V)
         L += val
+        cr = c * 0.5 * rhoA
         for i in range(3):
-            k = c * 0.5 * rhoA * dlt[i] * ih2
+            k = cr * dlt[i] * ih2
             e1[6 + i] -= k
             e2[6 + i] += k
         for i in range(6):
@@ -1004,6 +1024,13 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
             D2[N, i] += 0.5 * h * force[i]
         L += 0.5 * h * force[i] * (r_n[N, i] + (r_n[N, i] + dr[N, i]))
     return L
+
+
+@njit(cache=True)
+def _k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
+    """:func:`k_rod_gradient` with its scratch (RodPart.gradients)."""
+    return k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2,
+                          np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12), np.empty(12))
 
 
 @njit(cache=True)
