@@ -116,18 +116,17 @@ def k_cay(w0, w1, w2, out):
 
 
 @njit(cache=True, inline="always")
-def k_cay_inv(L, a, out):
-    """out = cay^-1(L) = 2 a / c for one L (3, 3) (any scalar type): :func:`cay_inv` of the compiled kernels, with
-    ``a`` (3) receiving the axial vector of L - L^T (unhalved) and c = 1 + tr L returned (the two pieces the
-    energy-momentum discrete gradient differentiates, varint.schemes.em_rod).  ``a`` may be ``out``."""
+def k_cay_inv(L, out):
+    """out = cay^-1(L) = 2 a / c for one L (3, 3) (any scalar type): :func:`cay_inv` of the compiled kernels.  Returns
+    (c, a0, a1, a2): c = 1 + tr L and a the axial vector of L - L^T (unhalved), the two pieces the energy-momentum
+    discrete gradient differentiates (varint.schemes.em_rod)."""
     a0 = L[2, 1] - L[1, 2]
     a1 = L[0, 2] - L[2, 0]
     a2 = L[1, 0] - L[0, 1]
     c = 1.0 + L[0, 0] + L[1, 1] + L[2, 2]
     f = 2.0 / c
-    a[0], a[1], a[2] = a0, a1, a2
     out[0], out[1], out[2] = f * a0, f * a1, f * a2
-    return c
+    return c, a0, a1, a2
 
 
 @njit(cache=True)
@@ -142,5 +141,5 @@ def cay_batch(w, out):
 def cay_inv_batch(L, out):
     """out[i] = cay^-1(L[i]) for L (n, 3, 3), out (n, 3)."""
     for i in range(L.shape[0]):
-        k_cay_inv(L[i], out[i], out[i])
+        k_cay_inv(L[i], out[i])
     return out

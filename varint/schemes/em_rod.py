@@ -799,7 +799,7 @@ def k_dg_row(r0, D0, Om0, G0, a0, c0, r1, D1, ds, Jd, Kd, stress, Fr, FD, G1, Db
         for i in range(3):
             d1[i] = r1[e + 1, i] - r1[e, i]
         k_gamma(D1[e], D1[e + 1], d1, ds, G1[e])
-        c1 = k_turn(D1[e], D1[e + 1], T, a1, om1)
+        c1, a1[0], a1[1], a1[2] = k_turn(D1[e], D1[e + 1], T, om1)
         icc = 1.0 / (c0[e] * c1)
         beta = 0.0 * icc
         for i in range(3):

@@ -192,7 +192,7 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
     Returns False when it is not finite."""
     N = Lam_n.shape[0] - 1
     _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
-    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, 1, D, D, M, V, e1, e2)
+    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, 1, D, D, M, V, e1, e2, False)
     for j in range(N + 1):
         for i in range(6):
             D[j, i] += pin[j, i]
@@ -525,7 +525,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         if t > turn[0]:
             turn[0] = t
             turn[1] = j
-    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, 2, D, D, M, V, e1, e2)
+    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, 2, D, D, M, V, e1, e2, False)
     # the new frames: Lambda_n cay(xi), then one polar Newton step L (3 I - L^T L) / 2 (varint.terms.rod.reorthonormalize)
     L1 = q1[3 * n1:12 * n1].reshape(n1, 3, 3)
     T = M[4]  # (element scratch, free here)

@@ -633,11 +633,11 @@ def k_gamma_mid(pa0_i, pb0_i, pa1_i, pb1_i, ds):
 
 
 @njit(cache=True, inline="always")
-def k_turn(La, Lb, T, a, om):
-    """The element's relative rotation T = La^T Lb and om = cay^-1(T) = ds Omega (its curvature times ds), with ``a``
-    the axial vector of T - T^T (unhalved; may be ``om``); returns c = 1 + tr T (om = 2 a / c)."""
+def k_turn(La, Lb, T, om):
+    """The element's relative rotation T = La^T Lb and om = cay^-1(T) = ds Omega (its curvature times ds); returns
+    (c, a0, a1, a2), c = 1 + tr T and a the axial vector of T - T^T (unhalved): om = 2 a / c."""
     _k_mtm(La, Lb, T)
-    return k_cay_inv(T, a, om)
+    return k_cay_inv(T, om)
 
 
 @njit(cache=True, inline="always")
@@ -646,36 +646,33 @@ def k_element_strains(La, Lb, d, ds, T, pa, pb, G, a, om):
     Omega and a (:func:`k_turn`); returns c = 1 + tr(La^T Lb)."""
     k_chords(La, Lb, d, pa, pb)
     k_gamma(La, Lb, d, ds, G)
-    return k_turn(La, Lb, T, a, om)
+    c, a[0], a[1], a[2] = k_turn(La, Lb, T, om)
+    return c
 
 
 @njit(cache=True, inline="always")
-def k_strain_force(La, Lb, pa, pb, gG, ds):
-    """A^T gG: the gradient, in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial, Lambda -> Lambda
-    cay(sigma)), of a function of the element's Gamma at that level whose Gamma-derivative is gG, as three 3-tuples
-    (f, sa, sb): the dr_a rows are -f, the dr_b rows f, the sigma rows sa, sb.  dGamma/ddr_b = -dGamma/ddr_a =
-    (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into p + p x sigma), so sa = gG x pa /
-    (2 ds).  (Returned in registers: the rod's element kernel adds its other pieces before it stores a row.)"""
-    f = (((La[0, 0] + Lb[0, 0]) * gG[0] + (La[0, 1] + Lb[0, 1]) * gG[1] + (La[0, 2] + Lb[0, 2]) * gG[2]) / (2.0 * ds),
-         ((La[1, 0] + Lb[1, 0]) * gG[0] + (La[1, 1] + Lb[1, 1]) * gG[1] + (La[1, 2] + Lb[1, 2]) * gG[2]) / (2.0 * ds),
-         ((La[2, 0] + Lb[2, 0]) * gG[0] + (La[2, 1] + Lb[2, 1]) * gG[1] + (La[2, 2] + Lb[2, 2]) * gG[2]) / (2.0 * ds))
-    sa = ((gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds), (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds),
-          (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds))
-    sb = ((gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds), (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds),
-          (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds))
-    return f, sa, sb
+def k_strain_force(La, Lb, pa, pb, gG, ds, i):
+    """Component i of A^T gG, the gradient in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial,
+    Lambda -> Lambda cay(sigma)) of a function of the element's Gamma at that level whose Gamma-derivative is gG:
+    (f, sa, sb) with the dr_a row -f, the dr_b row f and the sigma rows sa, sb.  dGamma/ddr_b = -dGamma/ddr_a =
+    (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into p + p x sigma), so sa = (gG x pa)_i
+    / (2 ds).  (Per component, in registers: the rod's element kernel adds its other pieces before it stores a row.)"""
+    j = (i + 1) % 3
+    k = (i + 2) % 3
+    f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+    return f, (gG[j] * pa[k] - gG[k] * pa[j]) / (2.0 * ds), (gG[j] * pb[k] - gG[k] * pb[j]) / (2.0 * ds)
 
 
 @njit(cache=True, inline="always")
 def k_strain_gradient(La, Lb, pa, pb, gG, ds, D):
     """D (12) = A^T gG (:func:`k_strain_force`) in the layout [dr_a, sigma_a, dr_b, sigma_b]: the constraint's element
     kernel and the fluid's stretch force (varint.terms.coupled)."""
-    f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds)
     for i in range(3):
-        D[i] = -f[i]
-        D[3 + i] = sa[i]
-        D[6 + i] = f[i]
-        D[9 + i] = sb[i]
+        f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds, i)
+        D[i] = -f
+        D[3 + i] = sa
+        D[6 + i] = f
+        D[9 + i] = sb
 
 
 @njit(cache=True, inline="always")
@@ -809,14 +806,14 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
             if level == 0:
                 _k_mm(Lam_n[j], C, Ln[j])
                 _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
-                k_cay_inv(T, xp[j], xp[j])
+                k_cay_inv(T, xp[j])
                 for i in range(3):
                     rn[j, i] = r_n[j, i] + dr[b, j, i]
             else:
                 _k_mm(Lam_n[j], Cx, T)
                 _k_mm(T, C, L1[j])
                 _k_mm(Cx, C, T)
-                k_cay_inv(T, xp[j], xp[j])
+                k_cay_inv(T, xp[j])
                 for i in range(3):
                     r1[j, i] = r_1[j, i] + dr[b, j, i]
             kv = 0.0 + 0.0j
@@ -890,9 +887,9 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     _k_mm(L0a, Ca, L1a)
     _k_mm(L0b, Cb, L1b)
     om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
-    Gb, Ob, gG, gw, tmp, Ixa, Ixb = V[8], V[9], V[10], V[11], V[12], V[13], V[14]
-    k_turn(L0a, L0b, T, om0, om0)
-    k_turn(L1a, L1b, T, om1, om1)
+    Gb, Ob, gG, gw, tmp, Ixa, Ixb, tmb = V[8], V[9], V[10], V[11], V[12], V[13], V[14], V[15]
+    k_turn(L0a, L0b, T, om0)
+    k_turn(L1a, L1b, T, om1)
     for i in range(3):
         dr0[i] = r0b[i] - r0a[i]
         dr1[i] = r1b[i] - r1a[i]
@@ -935,27 +932,20 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         D = D1 if lev == 0 else D2
         om = om0 if lev == 0 else om1
         sgn = -1.0 if lev == 0 else 1.0
-        # the strains' share (k_strain_force); gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2, and the velocities
-        if lev == 0:
-            (f0, f1, f2), (sa0, sa1, sa2), (sb0, sb1, sb2) = k_strain_force(L0a, L0b, pa0, pb0, gG, ds)
-        else:
-            (f0, f1, f2), (sa0, sa1, sa2), (sb0, sb1, sb2) = k_strain_force(L1a, L1b, pa1, pb1, gG, ds)
-        D[0] = -f0 + c * (0.25 * rhoA * g[0] + sgn * 0.5 * rhoA * (r1a[0] - r0a[0]) * ih2)
-        D[1] = -f1 + c * (0.25 * rhoA * g[1] + sgn * 0.5 * rhoA * (r1a[1] - r0a[1]) * ih2)
-        D[2] = -f2 + c * (0.25 * rhoA * g[2] + sgn * 0.5 * rhoA * (r1a[2] - r0a[2]) * ih2)
-        D[6] = f0 + c * (0.25 * rhoA * g[0] + sgn * 0.5 * rhoA * (r1b[0] - r0b[0]) * ih2)
-        D[7] = f1 + c * (0.25 * rhoA * g[1] + sgn * 0.5 * rhoA * (r1b[1] - r0b[1]) * ih2)
-        D[8] = f2 + c * (0.25 * rhoA * g[2] + sgn * 0.5 * rhoA * (r1b[2] - r0b[2]) * ih2)
-        # sigma_a: domega = -dcay^-1_om sigma
+        La = L0a if lev == 0 else L1a
+        Lb = L0b if lev == 0 else L1b
+        pa = pa0 if lev == 0 else pa1
+        pb = pb0 if lev == 0 else pb1
+        # the curvature's: sigma_a changes omega by -dcay^-1_om sigma, sigma_b by dcay^-1_{-om} sigma
         _k_dcinvT(om, gw, 1.0, tmp)
-        D[3] = sa0 - tmp[0]
-        D[4] = sa1 - tmp[1]
-        D[5] = sa2 - tmp[2]
-        # sigma_b: domega = dcay^-1_{-om} sigma
-        _k_dcinvT(om, gw, -1.0, tmp)
-        D[9] = sb0 + tmp[0]
-        D[10] = sb1 + tmp[1]
-        D[11] = sb2 + tmp[2]
+        _k_dcinvT(om, gw, -1.0, tmb)
+        # the strains' (k_strain_force), the weight rhoA g . rm / 2 per node (rm = (r0 + r1)/2) and the velocities'
+        for i in range(3):
+            f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds, i)
+            D[i] = -f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
+            D[6 + i] = f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
+            D[3 + i] = sa - tmp[i]
+            D[9 + i] = sb + tmb[i]
         # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
         _k_dcinvT(xia, Ixa, -sgn, tmp)
         for i in range(3):
@@ -967,7 +957,8 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
 
 
 @njit(cache=True, inline="always")
-def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2, M, V, e1, e2):
+def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2, M, V, e1, e2,
+                   value):
     """The rod's D1 (level n) and D2 (level n+1) of L_d, (N+1, 6) each: the element kernels (:func:`k_element`) summed,
     and the tip force's node piece; returns the value L_d.  Only the levels lev_lo <= level < lev_hi are written
     ((0, 1): D1 alone, (1, 2): D2 alone; D1 and D2 may then be one array).  The one sum of the rod's element gradients:
@@ -982,8 +973,9 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
     floating point, and node b's kinetic rows get c rhoA delta / (2 h^2) (signed as the kernel's), so both nodes' kinetic
     rows read their exact increments.  The weight reads the absolute positions (the paper's measure weights it, so its
     gradient does too): the element kernel takes g . r_a^n with the centred positions (k_element's ``g0``), and the
-    value and gradients are those of the absolute positions, for either measure.  Scratch: M (5, 3, 3), V (20, 3) (the element kernel's rows 0-15, the element's
-    positions 16-19), e1, e2 (12)."""
+    value and gradients are those of the absolute positions, for either measure.  ``value``: also sum the value L_d
+    (else 0 is returned; the compiled rod step needs the gradients only).  Scratch: M (5, 3, 3), V (20, 3) (the
+    element kernel's rows 0-15, the element's positions 16-18), e1, e2 (12)."""
     N = Lam_n.shape[0] - 1
     ih2 = 1.0 / (h * h)
     for j in range(N + 1):
@@ -992,7 +984,7 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
                 D1[j, i] = 0.0
             if lev_hi == 2:
                 D2[j, i] = 0.0
-    za, rb0, rb1, dlt = V[16], V[17], V[18], V[19]
+    za, rb0, rb1 = V[16], V[17], V[18]
     for i in range(3):
         za[i] = 0.0  # (the element kernel's scratch is rows 0-15)
     L = 0.0
@@ -1000,14 +992,15 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
         for i in range(3):
             rb0[i] = r_n[e + 1, i] - r_n[e, i]
             rb1[i] = rb0[i] + dr[e + 1, i]
-            dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
-        g0 = g[0] * r_n[e, 0] + g[1] * r_n[e, 1] + g[2] * r_n[e, 2]
+        # the weight's potential at the absolute positions: in the value, and through mu in the paper measure's gradient
+        g0 = g[0] * r_n[e, 0] + g[1] * r_n[e, 1] + g[2] * r_n[e, 2] if (value or paper) else 0.0
         val, c = k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1],
                            dr[e], rb1, g0, lev_lo, lev_hi, e1, e2, M, V)
-        L += val
+        if value:
+            L += val
         cr = c * 0.5 * rhoA
         for i in range(3):
-            k = cr * dlt[i] * ih2
+            k = cr * (dr[e + 1, i] - (rb1[i] - rb0[i])) * ih2  # node b's rounding error, exact in floating point
             e1[6 + i] -= k
             e2[6 + i] += k
         for i in range(6):
@@ -1022,7 +1015,8 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
             D1[N, i] += 0.5 * h * force[i]
         if lev_hi == 2:
             D2[N, i] += 0.5 * h * force[i]
-        L += 0.5 * h * force[i] * (r_n[N, i] + (r_n[N, i] + dr[N, i]))
+        if value:
+            L += 0.5 * h * force[i] * (r_n[N, i] + (r_n[N, i] + dr[N, i]))
     return L
 
 
@@ -1030,7 +1024,7 @@ def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi
 def _k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
     """:func:`k_rod_gradient` with its scratch (RodPart.gradients)."""
     return k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2,
-                          np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12), np.empty(12))
+                          np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12), np.empty(12), True)
 
 
 @njit(cache=True)
