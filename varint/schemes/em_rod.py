@@ -63,7 +63,7 @@ def supports(model):
     return None
 
 
-#: varint.lattice.lie.hat under the name the step classes' constructors (here and in em_tube) read
+#: varint.lattice.lie.hat under the name the step classes' constructors (here and in em_tube) and rigid_correction read
 _hat = hat
 
 
@@ -134,8 +134,8 @@ def rigid_correction(h, P, J, m, x, E, Db):
     Ilock += eye * np.trace(Id) - Id
     A = np.zeros((6, 6))
     A[:3, :3] = m.sum() * eye
-    A[:3, 3:] = -hat(S)
-    A[3:, :3] = hat(S)
+    A[:3, 3:] = -_hat(S)
+    A[3:, :3] = _hat(S)
     A[3:, 3:] = Ilock
     aw = np.linalg.solve(A, -(0.5 * h) * np.concatenate([P, J]))
     return aw[:3], aw[3:]

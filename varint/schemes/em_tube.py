@@ -40,7 +40,8 @@ elements with a liquid), each one checked against a random directional derivativ
 correction of the solution zeroes the momentum balances.  The residual's three heavy parts (the fluid's pairs, the
 labels' constraint, the rod's discrete gradient) run as compiled loops (varint/schemes/em_tube_kernels.py; the rod's
 discrete gradient is the rod's own, varint.schemes.em_rod.rod_discrete_gradient) on real iterates and on the Jacobian's
-complex batches; the numpy code beside the first two is the reference (``compiled = False``), tested equal to round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
+complex batches; the numpy code beside the first two is the reference (``compiled = False``), tested equal to
+round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
 a Jacobian every 1-4 steps share the cost (docs/performance.md, "The coupled tube's energy-momentum step").
 """
 
