@@ -125,7 +125,10 @@ def invariant_error(name, model, mons, fields):
         flux = _series(mons, f"{kind}_flux")
         flux = flux[:, 0] if flux.ndim > 1 else flux
         ref = max(float(np.max(np.abs(value))), float(np.max(np.abs(flux))), 1e-300)
-        return float(np.max(np.abs(b))) / ref, {"energy": ENERGY_RTOL, "momentum": MOMENTUM_RTOL, "mass": 1e-13}[kind]
+        # momentum: the balance is a difference of momenta summed with each step's end forces, so its rounding grows
+        # with the steps (1.04e-12 after the capability cells' 4 steps of the open liquid); leaving the flux out
+        # shows at 4.4e-6 there, 4000x this tolerance
+        return float(np.max(np.abs(b))) / ref, {"energy": ENERGY_RTOL, "momentum": 10 * MOMENTUM_RTOL, "mass": 1e-13}[kind]
     if name == "parcel_volume":
         # where the scheme holds the volumes (the levels for a liquid on a [rod], docs/theory.md §10.12), to the
         # Newton tolerance

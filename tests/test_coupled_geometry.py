@@ -217,3 +217,112 @@ def test_periodic_centreline_wraps_with_the_period():
     assert np.allclose(Xs, X + [L, 0, 0], rtol=0, atol=1e-14)
     assert np.allclose(dXs, dX, rtol=0, atol=1e-13)
     assert np.allclose(centreline(sj, r, ds, periodic=True)[0], r, rtol=0, atol=1e-15)
+
+
+def test_catmull_rom_kernels_are_the_basis_polynomials():
+    """varint.lattice.centreline's compiled basis (k_cr_weights, k_cr_basis, k_cr_dd: the one Catmull-Rom basis, the
+    coefficient table CR) against the polynomials written out, their derivatives and divided differences, real and
+    complex; the em step's numpy twins (varint.schemes.em_tube._cr, _cr_dd) evaluate the same table; k_fold_ghost and
+    k_cr_stencil fold a closed end's ghost as the dense fold of the numpy reference does."""
+    from varint.lattice.centreline import CR, k_cr_basis, k_cr_dd, k_cr_stencil, k_cr_weights, k_fold_ghost
+    from varint.schemes.em_tube import _cr, _cr_dd, _fold
+
+    def written(t):  # the weights of nodes e-1..e+2 (docs/theory.md §10.2)
+        return 0.5 * np.array([-t ** 3 + 2 * t ** 2 - t, 3 * t ** 3 - 5 * t ** 2 + 2, -3 * t ** 3 + 4 * t ** 2 + t, t ** 3 - t ** 2])
+
+    rng = np.random.default_rng(3)
+    for t in np.r_[0.0, 1.0, rng.uniform(0, 1, 6)]:
+        w, dw, d2w = np.empty(4), np.empty(4), np.empty(4)
+        k_cr_basis(t, w, dw, d2w)
+        assert np.abs(w - written(t)).max() < 4e-16
+        assert np.abs(dw - (written(t + 1e-6) - written(t - 1e-6)) / 2e-6).max() < 1e-8
+        assert np.abs(d2w - (written(t + 1e-4) - 2 * written(t) + written(t - 1e-4)) / 1e-8).max() < 1e-6
+        assert np.abs(w - _cr(np.array(t))).max() < 4e-16
+        b = t + 0.3
+        dd = np.empty(4)
+        k_cr_dd(t, b, dd)
+        assert np.abs(dd - (written(b) - written(t)) / 0.3).max() < 1e-14
+        assert np.abs(dd - _cr_dd(np.array(t), np.array(b))).max() < 1e-15
+        k_cr_dd(t, t, dd)
+        assert np.array_equal(dd, dw)
+        wc = np.empty(4, complex)
+        k_cr_weights(t + 1e-30j, wc)
+        assert np.abs(wc.real - w).max() < 1e-15 and np.abs(wc.imag / 1e-30 - dw).max() < 1e-15
+    assert CR.shape == (4, 4) and np.allclose(CR.sum(0), [1, 0, 0, 0], atol=0)
+    # a closed end's ghost: the stencil fold against the dense fold, at both ends of 3- and 6-node lattices
+    for n_nodes in (3, 6):
+        for e in (0, n_nodes - 2):
+            w = rng.normal(size=4)
+            nodes = np.empty(4, np.int64)
+            slot = k_cr_stencil(e, n_nodes, False, nodes)
+            assert slot == (0 if e == 0 else 3)
+            dense = np.zeros(n_nodes + 2)
+            dense[e + np.arange(4)] = w
+            ref = _fold(dense, n_nodes)
+            k_fold_ghost(slot, w)
+            got = np.zeros(n_nodes)
+            np.add.at(got, nodes, w)
+            assert nodes.min() >= 0 and nodes.max() < n_nodes
+            assert np.abs(got - ref).max() < 1e-15
+
+
+def test_moment_kernels_are_the_element_integrals():
+    """varint.lattice.centreline's moments (MQ, k_moments, k_moments_dd: the one table of the stretched volumes, for
+    the coupled kernels and the energy-momentum step's pairs) against quadrature of (1 - tau)^(3-q) tau^q, their
+    divided differences, complex steps; k_piece_volume with a unit stretch is the straight tube's element integral."""
+    from varint.lattice.centreline import MQ, k_moments, k_moments_dd, k_piece_volume
+    from varint.lattice.parcels import volume_below
+    from varint.schemes.em_tube import _moments
+
+    rng = np.random.default_rng(4)
+    for t in np.r_[0.0, 1e-9, 1.0, rng.uniform(0, 1, 5)]:
+        M = np.empty(4)
+        k_moments(t, M)
+        P = np.polynomial.Polynomial
+        ref = [((P([1.0, -1.0]) ** (3 - q)) * P([0.0, 1.0]) ** q).integ()(t) for q in range(4)]  # exact antiderivatives
+        assert np.abs(M - ref).max() < 4e-16 * max(t, 1e-16)
+        assert np.abs(M - _moments(np.array(t), False)).max() < 1e-16
+        Mc = np.empty(4, complex)
+        k_moments(t + 1e-30j, Mc)
+        assert np.abs(Mc.imag / 1e-30 - [(1 - t) ** (3 - q) * t ** q for q in range(4)]).max() < 1e-15
+        dd, Mb = np.empty(4), np.empty(4)
+        k_moments(t + 0.2, Mb)
+        k_moments_dd(t, t + 0.2, dd)
+        assert np.abs(dd - (Mb - M) / 0.2).max() < 1e-14
+    assert MQ.shape == (4, 4)
+    R, ds = np.array([0.05, 0.07]), 0.3
+    for lo, hi in ((0.0, 1.0), (0.2, 0.9)):
+        S, Sl = np.empty(4), np.empty(4)
+        k_moments(hi, S)
+        k_moments(lo, Sl)
+        v = k_piece_volume(R[0], R[1], 1.0, 1.0, S - Sl, ds)
+        F = volume_below(np.array([lo, hi]) * ds, R, ds)
+        assert v == pytest.approx(F[1] - F[0], rel=1e-14)
+
+
+def test_whole_element_volume_is_the_piece_volume_over_the_element():
+    """k_whole_element (the tube's volume under the external pressure, its gradient and Hessian, for the coupled
+    kernels and their numpy reference) is k_piece_volume over [0, 1], and its derivatives those of that polynomial."""
+    from varint.lattice.centreline import k_moments, k_piece_volume, k_whole_element
+
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.5, 1.5, 4)
+    S = np.empty(4)
+    k_moments(1.0, S)
+    w = k_whole_element(*x)
+    assert w[0] == pytest.approx(12 * k_piece_volume(*x, S, 1.0) / np.pi, rel=1e-14)
+    f = lambda y: k_whole_element(*y)[0]  # noqa: E731
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = 1e-6
+        assert w[1 + i] == pytest.approx((f(x + e) - f(x - e)) / 2e-6, rel=1e-8)
+    H = np.zeros((4, 4))
+    H[0, 0], H[1, 1], H[0, 1], H[0, 2], H[0, 3], H[1, 2], H[1, 3] = w[5:]
+    H = H + np.triu(H, 1).T
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = 1e-5
+        gp, gm = np.array(k_whole_element(*(x + e))[1:5]), np.array(k_whole_element(*(x - e))[1:5])
+        assert np.allclose((gp - gm) / 2e-5, H[i], rtol=1e-7, atol=1e-9)
+    arr = k_whole_element(*(np.stack([x, x + 0.1]).T))  # elementwise on arrays (the numpy reference's use)
+    assert arr[0][0] == pytest.approx(w[0], rel=1e-15)

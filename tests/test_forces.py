@@ -120,3 +120,23 @@ def test_check_lists_the_forces_and_the_derived_invariants(tmp_path, capsys):
     f.write_text(to_toml(scene))
     assert main(["check", str(f)]) == 0
     assert "expected invariants: none" in capsys.readouterr().out
+
+
+def test_the_tip_torque_kernel_is_the_body_torque():
+    """k_tip_torque (the one formula of the dead tip torque's discrete forces f^-, f^+ = (h/2) Lambda_N^T T: TipTorque and
+    the compiled rod step add it with this kernel) against Lambda_N^T T in NumPy; TipTorque's static force and its
+    stiffness block hat(Lambda_N^T T) follow."""
+    from varint.lattice.lie import cay, hat
+    from varint.terms.forces import TipTorque, k_tip_torque
+
+    rng = np.random.default_rng(6)
+    T = rng.normal(size=3)
+    Lam = cay(rng.normal(size=(4, 3)))
+    f = TipTorque(T)
+    out = np.ones(3)
+    k_tip_torque(0.25, Lam[-1], T, out)
+    assert np.abs(out - 1.0 - 0.25 * Lam[-1].T @ T).max() < 1e-15
+    assert np.abs(f.discrete(0.5, Lam)[-1, 3:] - 0.25 * Lam[-1].T @ T).max() < 1e-15
+    assert not f.discrete(0.5, Lam)[:-1].any() and not f.discrete(0.5, Lam)[-1, :3].any()
+    assert np.abs(f.generalised(Lam)[-1, 3:] - Lam[-1].T @ T).max() < 1e-15
+    assert np.abs(f.stiffness_block(Lam) - hat(Lam[-1].T @ T)).max() < 1e-15

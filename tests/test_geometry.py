@@ -213,3 +213,20 @@ def test_label_exactly_on_a_node_is_continuous():
     slope_r = (f(x0 + 1e-6) - f(x0)) / 1e-6
     assert slope_l == pytest.approx(np.pi * 0.045 ** 2, rel=1e-4)
     assert slope_r == pytest.approx(np.pi * 0.045 ** 2, rel=1e-4)
+
+
+def test_volume_below_is_the_parcel_volumes_running_sum():
+    """volume_below (the open ducts' F(s) = int_0^s A) is the parcel kernels' element integral: its differences are the
+    parcel volumes, its value at L the tube's volume."""
+    from varint.lattice.parcels import volume_below
+
+    rng = np.random.default_rng(8)
+    n, L = 9, 1.3
+    ds = L / (n - 1)
+    R = 0.05 * (1 + 0.2 * rng.uniform(-1, 1, n))
+    s = np.r_[0.0, np.sort(rng.uniform(0, L, 12)), L]
+    F = volume_below(s, R, ds)
+    V = G.parcel_volumes(s, R, ds, False)
+    assert np.abs(np.diff(F) - V).max() < 1e-15 * V.max() * len(s)
+    assert float(volume_below(L, R, ds)) == pytest.approx(G.tube_volume(R, ds, False)[0], rel=1e-15)
+    assert volume_below(0.0, R, ds) == 0.0

@@ -59,3 +59,13 @@ def test_kernels_equal_references():
     out2 = np.empty_like(out)
     lie.cay_batch.py_func(W, out2)
     assert np.array_equal(out, out2) or np.allclose(out, out2, atol=1e-16)
+
+
+def test_hat_kernel_equals_hat():
+    """The compiled k_hat (the kernels' hat map) is hat, to the bit, on real and complex vectors."""
+    for w in (W, W + 1j * RNG.standard_normal(W.shape)):
+        out = np.empty((len(w), 3, 3), dtype=w.dtype)
+        for i in range(len(w)):
+            lie.k_hat(w[i], 0.7, out[i])
+        assert np.array_equal(out, 0.7 * lie.hat(w))
+        assert np.array_equal(out[:, 0, 1:], 0.7 * np.stack([-w[:, 2], w[:, 1]], -1))

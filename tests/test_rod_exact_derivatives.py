@@ -45,17 +45,60 @@ def test_dcay_inverse_transpose_kernel_equals_lie_reference():
 
 @pytest.mark.parametrize("measure", ["reference", "paper"])
 def test_element_kernel_energy_equals_the_numpy_lagrangian(measure):
-    """k_element's value is the element piece of RodModel.lagrangian_pieces (the NumPy reference)."""
+    """k_element's value is the element piece of RodModel.lagrangian_pieces (the NumPy reference); with the positions
+    given relative to a point o and g0 = g . o (as k_rod_gradient centres each element on its first node) its value
+    and gradients are the absolute positions' (the paper's measure weights the weight, whose gradient then reads
+    where the element is)."""
     model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"]))
     (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(1))
+    r0, r1 = r0 + [3.0, -2.0, 1.5], r1 + [3.0, -2.0, 1.5]
     xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
     elem, _ = model.rod.lagrangian_pieces(1e-3, L0, r0, xi, r1)
     _, rhoA, inertia, J, K, g, _ = model.rod._consts()
     for e in (0, 4, model.N - 1):
-        val = k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
-                         xi[e], xi[e + 1], r1[e], r1[e + 1], 0, 2, np.empty(12), np.empty(12), np.empty((5, 3, 3)),
-                         np.empty((16, 3)))
+        D = np.empty((4, 12))
+        val, c = k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1], r0[e],
+                           r0[e + 1], xi[e], xi[e + 1], r1[e], r1[e + 1], 0.0, 0, 2, D[0], D[1], np.empty((5, 3, 3)),
+                           np.empty((16, 3)))
         assert val == pytest.approx(elem[e], rel=1e-14)
+        o = r0[e]
+        val_o, c_o = k_element(1e-3, model.ds, rhoA, inertia, J, K, g, model.rod.paper_measure, L0[e], L0[e + 1],
+                               r0[e] - o, r0[e + 1] - o, xi[e], xi[e + 1], r1[e] - o, r1[e + 1] - o, float(g @ o), 0, 2,
+                               D[2], D[3], np.empty((5, 3, 3)), np.empty((16, 3)))
+        assert val_o == pytest.approx(val, rel=1e-13)
+        assert c_o == pytest.approx(c, rel=1e-14)
+        assert np.abs(D[2:] - D[:2]).max() < 1e-12 * np.abs(D[:2]).max()
+
+
+@pytest.mark.parametrize("measure", ["reference", "paper"])
+def test_the_centred_gradient_sum_is_the_absolute_one(measure):
+    """k_rod_gradient (each element centred on its first node with its exact increments: the one sum of the element
+    kernels, for RodPart.gradients, the stepper's rod term and the compiled rod step) equals the plain sum of k_element
+    over the elements at the absolute positions, far from the origin, with gravity and a tip force, both levels, one
+    level alone; and its value is L_d."""
+    model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"], load=LOADS["load"]))
+    rod = model.rod
+    (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(4))
+    r0, r1 = r0 + [30.0, -20.0, 15.0], r1 + [30.0, -20.0, 15.0]
+    xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
+    h = 1e-3
+    _, rhoA, inertia, J, K, g, force = rod._consts()
+    ref = np.zeros((2, model.N + 1, 6))
+    L_ref = 0.5 * h * force @ (r0[-1] + r1[-1])
+    e12 = np.empty((2, 12))
+    for e in range(model.N):
+        val, _ = k_element(h, model.ds, rhoA, inertia, J, K, g, rod.paper_measure, L0[e], L0[e + 1], r0[e], r0[e + 1],
+                           xi[e], xi[e + 1], r1[e], r1[e + 1], 0.0, 0, 2, e12[0], e12[1], np.empty((5, 3, 3)),
+                           np.empty((16, 3)))
+        L_ref += val
+        ref[:, e] += e12[:, :6]
+        ref[:, e + 1] += e12[:, 6:]
+    ref[:, -1, :3] += 0.5 * h * force
+    D1, D2, L = rod.gradients(h, L0, r0, xi, r1)
+    for D, R in ((D1, ref[0]), (D2, ref[1]), (rod.derivative(h, L0, r0, xi, r1, 1), ref[1])):
+        assert np.abs(D - R).max() < 1e-12 * np.abs(R).max()
+    assert L == pytest.approx(L_ref, rel=1e-12)
+    assert not rod.gradients(h, L0, r0, xi, r1, levels=(0, 1))[1].any()
 
 
 @pytest.mark.parametrize("measure", ["reference", "paper"])
@@ -195,3 +238,60 @@ def test_gradients_return_the_level_they_skip_as_zeros():
     assert np.all(D1b == 0.0) and np.any(D2b != 0.0)
     full1, full2, _ = model.rod.gradients(1e-2, model.rod.Lam0, model.rod.r0, xi, r1)
     assert np.array_equal(full1, D1) and np.array_equal(full2, D2b)
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_level_strains_are_the_strain_formulas(periodic):
+    """varint.terms.rod.level_strains (the compiled k_element_strains: the one place of the rod's strain formulas, for
+    the step's kernels, the fluid's stretch and the energy-momentum step's directors) against the formulas in NumPy:
+    Omega = cay^-1(La^T Lb)/ds = 2 a / (c ds), Gamma = (La + Lb)^T (rb - ra)/(2 ds), pa = La^T (rb - ra), pb; real and
+    complex batches of any 3 x 3 matrices (directors need not be rotations); a periodic lattice closes with the period."""
+    from varint.terms.rod import level_strains
+
+    rng = np.random.default_rng(9)
+    n, ds = 6, 0.3
+    period = np.array([n * ds, 0.2, -0.1])
+    Lam = cay(rng.normal(size=(2, n, 3))) + 0.1 * rng.normal(size=(2, n, 3, 3))
+    r = np.cumsum(rng.normal(size=(2, n, 3)) * 0.1 + [ds, 0, 0], 1)
+    for L, x in ((Lam, r), (Lam + 1e-30j * rng.normal(size=Lam.shape), r + 1e-30j * rng.normal(size=r.shape))):
+        st = level_strains(L, x, ds, periodic, period if periodic else None)
+        b = np.arange(n if periodic else n - 1)
+        f = (b + 1) % n
+        d = x[:, f] - x[:, b] + (np.where(b == n - 1, 1.0, 0.0)[:, None] * period if periodic else 0.0)
+        pa = np.einsum("...eki,...ek->...ei", L[:, b], d)
+        pb = np.einsum("...eki,...ek->...ei", L[:, f], d)
+        R = np.swapaxes(L[:, b], -1, -2) @ L[:, f]
+        a = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+        c = 1.0 + np.trace(R, axis1=-2, axis2=-1)
+        for got, ref in ((st.pa, pa), (st.pb, pb), (st.Gamma, (pa + pb) / (2 * ds)), (st.a, a), (st.c, c),
+                         (st.Omega, 2 * a / (c[..., None] * ds))):
+            assert np.abs(got - ref).max() <= 1e-14 * np.abs(ref).max()
+            if np.iscomplexobj(x):
+                assert np.abs(got.imag - ref.imag).max() <= 1e-13 * np.abs(ref.imag).max()
+        if not np.iscomplexobj(x):
+            Om = cay_inv(R) / ds
+            assert np.abs(st.Omega - Om).max() < 1e-14 * np.abs(Om).max()
+
+
+@pytest.mark.parametrize("measure", ["reference", "paper"])
+def test_the_measure_kernel_is_the_element_kernels(measure):
+    """k_measure (the compiled step's closed-form momentum balances) is |Gammabar_e|, k_element's own factor c/(h ds)
+    to the bit, at the step's chart (level-n frames and positions, turns xi, increments dr), centred as
+    k_rod_gradient centres the element."""
+    from varint.terms.rod import k_measure, level_strains
+
+    model = build_model(rod_scene(measure=measure, gravity=LOADS["gravity"]))
+    rod = model.rod
+    (L0, r0), (L1, r1) = _levels(model, np.random.default_rng(2))
+    xi = cay_inv(np.swapaxes(L0, 1, 2) @ L1)
+    dr = r1 - r0
+    _, rhoA, inertia, J, K, g, _ = rod._consts()
+    Gbar = 0.5 * (level_strains(L0, r0, model.ds).Gamma + level_strains(L0 @ cay(xi), r0 + dr, model.ds).Gamma)
+    for e in range(model.N):
+        mu = k_measure(e, model.ds, L0, r0, xi, dr, np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)))
+        assert mu == pytest.approx(np.linalg.norm(Gbar[e]), rel=1e-14)
+        rb0 = r0[e + 1] - r0[e]
+        _, c = k_element(1.0, model.ds, rhoA, inertia, J, K, g, True, L0[e], L0[e + 1], np.zeros(3), rb0, xi[e],
+                         xi[e + 1], dr[e], rb0 + dr[e + 1], 0.0, 0, 2, np.empty(12), np.empty(12), np.empty((5, 3, 3)),
+                         np.empty((16, 3)))
+        assert c == 1.0 * model.ds * mu

@@ -199,7 +199,6 @@ def test_the_compiled_loops_are_the_numpy_ones(case):
     branch), on the level itself, and for labels moved exactly onto nodes (where the branches meet); the labels'
     constraint with labels crossing up to three elements; to round-off."""
     from varint.schemes import em_tube_kernels as kernels
-    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model(case), 1e-3)
     rng = np.random.default_rng(5)
@@ -224,7 +223,7 @@ def test_the_compiled_loops_are_the_numpy_ones(case):
         gam1 = st.stretches(r1, D1)[2]
         pk, pe = st._pairs(np.minimum(st.s, s1), np.maximum(st.s, s1))
         V = np.empty((1, st.M))
-        kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, _MQ, V)
+        kernels.pair_volumes(s1[None], R1[None], gam1[None], pk, pe, st.ds, V)
         assert np.abs(V[0] - st._volumes_on(s1, R1, gam1, pk, pe)).max() < 1e-15 * V.max(), name
     # the labels' constraint alone, its labels moved across up to three elements in one step, real and complex
     ds = 2.5 * st.ds * np.cos(np.arange(st.M - 1))
@@ -245,7 +244,6 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
     passes a complex step through (tube_em._clip_owned), so dV/ds by complex step is the volumes' derivative (V is
     C^1 in s), measured by central differences, not twice it (as it was before)."""
     from varint.schemes import em_tube_kernels as kernels
-    from varint.schemes.em_tube import _MQ
 
     st = TubeEMStep(_case_model("gas-pressurised-on-nodes"), 1e-3)
     on_node = np.abs(st.s / st.ds - np.rint(st.s / st.ds)) < 1e-12
@@ -257,8 +255,7 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
         if not compiled:
             return st._volumes_on(s, st.R, gam, pk, pe)
         V = np.empty((1, st.M), dtype=np.result_type(s, float))
-        kernels.pair_volumes(np.atleast_2d(s), st.R[None].astype(V.dtype), gam[None].astype(V.dtype), pk, pe, st.ds,
-                             _MQ, V)
+        kernels.pair_volumes(np.atleast_2d(s), st.R[None].astype(V.dtype), gam[None].astype(V.dtype), pk, pe, st.ds, V)
         return V[0]
 
     for k in range(1, st.M):
@@ -270,26 +267,38 @@ def test_the_volumes_complex_step_derivative_counts_a_label_on_a_node_once(compi
         assert np.abs(cs - fd).max() < 1e-6 * np.abs(fd).max(), (k, cs, fd)
 
 
-def test_the_compiled_rod_discrete_gradient_is_rod_em_s():
-    """varint.schemes.em_tube_kernels.rod_discrete_gradient against varint.schemes.em_rod.discrete_gradient with a stress, on random
-    directors (not orthonormal) and a complex batch."""
-    from varint.schemes.em_rod import discrete_gradient
-    from varint.schemes.em_tube_kernels import rod_discrete_gradient
+def test_the_compiled_rod_discrete_gradient_with_a_stress_on_a_complex_batch():
+    """varint.schemes.em_rod.rod_discrete_gradient (the one discrete gradient of the rod: discrete_gradient, the rod's and
+    the coupled tube's residuals) with a stress, on random directors (not orthonormal) and a complex batch: each row is
+    the row alone, a complex step is the central difference of the real kernel, and the stress does the work
+    ds sum_e stress_e . (Gamma_e(q_1) - Gamma_e(q_0)) on the increment (Gamma is bilinear: exact)."""
+    from varint.schemes.em_rod import discrete_gradient, rod_discrete_gradient, strains
 
     rng = np.random.default_rng(7)
     N, ds = 5, 0.2
     Jd, Kd = np.array([0.8, 1.0, 1.2]), np.array([100.0, 60.0, 70.0])
     r0 = np.cumsum(rng.normal(size=(N + 1, 3)) * 0.05 + [ds, 0, 0], 0)
     D0 = np.eye(3) + 0.2 * rng.normal(size=(N + 1, 3, 3))
-    r1 = r0 + 0.01 * rng.normal(size=(2, N + 1, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3))
-    D1 = D0 + 0.1 * rng.normal(size=(2, N + 1, 3, 3)) + 1e-30j * rng.normal(size=(2, N + 1, 3, 3))
+    dr, dD = 0.01 * rng.normal(size=(2, N + 1, 3)), 0.1 * rng.normal(size=(2, N + 1, 3, 3))
+    er, eD = rng.normal(size=(2, N + 1, 3)), rng.normal(size=(2, N + 1, 3, 3))
+    r1 = r0 + dr + 1e-30j * er
+    D1 = D0 + dD + 1e-30j * eD
     stress = rng.normal(size=(2, N, 3))
     Fr, FD = np.empty(r1.shape, complex), np.empty(D1.shape, complex)
-    rod_discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress, Fr, FD)
-    Fr_ref, FD_ref = discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress)
-    for a, b in ((Fr, Fr_ref), (FD, FD_ref)):
-        assert np.abs(a.real - b.real).max() < 1e-13 * np.abs(b.real).max()
-        assert np.abs(a.imag - b.imag).max() < 1e-12 * np.abs(b.imag).max()
+    rod_discrete_gradient(r0[None], D0[None], r1, D1, ds, Jd, Kd, stress, Fr, FD)
+    h = 1e-6
+    for b in range(2):
+        Fr_b, FD_b = discrete_gradient(r0, D0, r0 + dr[b], D0 + dD[b], ds, Jd, Kd, stress[b])
+        assert np.array_equal(Fr[b].real, Fr_b) and np.array_equal(FD[b].real, FD_b)
+        p = discrete_gradient(r0, D0, r0 + dr[b] + h * er[b], D0 + dD[b] + h * eD[b], ds, Jd, Kd, stress[b])
+        m = discrete_gradient(r0, D0, r0 + dr[b] - h * er[b], D0 + dD[b] - h * eD[b], ds, Jd, Kd, stress[b])
+        for cs, fp, fm in ((Fr[b].imag / 1e-30, p[0], m[0]), (FD[b].imag / 1e-30, p[1], m[1])):
+            assert np.abs(cs - (fp - fm) / (2 * h)).max() < 1e-6 * np.abs(cs).max()
+        # the stress's share of the forces does the work ds sum stress . dGamma
+        F0r, F0D = discrete_gradient(r0, D0, r0 + dr[b], D0 + dD[b], ds, Jd, Kd)
+        work = np.sum((Fr_b - F0r) * dr[b]) + np.sum((FD_b - F0D) * dD[b])
+        dG = strains(r0 + dr[b], D0 + dD[b], ds)[1] - strains(r0, D0, ds)[1]
+        assert work == pytest.approx(ds * np.sum(stress[b] * dG), rel=1e-13)
 
 
 def test_the_newton_jacobian_is_the_derivative_of_the_residual():

@@ -33,12 +33,12 @@ import math
 import numpy as np
 from numba import njit
 
-from .parcels import label_problem
+from .parcels import k_locate, label_problem
 
 EPS = np.finfo(float).eps
 
 __all__ = ["centreline_weights", "centreline", "centreline_and_weights", "stretched_volumes", "stretched_volume_derivatives",
-           "nodal_stretch"]
+           "nodal_stretch", "CR", "GHOST", "MQ"]
 
 
 # ---------------------------------------------------------------------------
@@ -94,66 +94,104 @@ def centreline_and_weights(s, r, ds, periodic=False, period=None):
             np.einsum("ki,kid->kd", d2N, pts))
 
 
-@njit(cache=True)
-def _cr_basis(t, out, dout, d2out):
-    """Catmull–Rom weights of nodes e-1, e, e+1, e+2 at local coordinate t, and their t-derivatives."""
-    out[0] = 0.5 * (-t * t * t + 2.0 * t * t - t)
-    out[1] = 0.5 * (3.0 * t * t * t - 5.0 * t * t + 2.0)
-    out[2] = 0.5 * (-3.0 * t * t * t + 4.0 * t * t + t)
-    out[3] = 0.5 * (t * t * t - t * t)
-    dout[0] = 0.5 * (-3.0 * t * t + 4.0 * t - 1.0)
-    dout[1] = 0.5 * (9.0 * t * t - 10.0 * t)
-    dout[2] = 0.5 * (-9.0 * t * t + 8.0 * t + 1.0)
-    dout[3] = 0.5 * (3.0 * t * t - 2.0 * t)
-    d2out[0] = 0.5 * (-6.0 * t + 4.0)
-    d2out[1] = 0.5 * (18.0 * t - 10.0)
-    d2out[2] = 0.5 * (-18.0 * t + 8.0)
-    d2out[3] = 0.5 * (6.0 * t - 2.0)
+#: the Catmull-Rom weights of nodes e-1, e, e+1, e+2 at the local coordinate t of element e, as coefficients of
+#: t^0..t^3 (row i: node e-1+i; docs/theory.md §10.2): the one definition of the basis; its derivatives and divided
+#: differences are those of these polynomials (:func:`k_cr_basis`, :func:`k_cr_dd`)
+CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
+                     [2.0, 0.0, -5.0, 3.0],
+                     [0.0, 1.0, 4.0, -3.0],
+                     [0.0, 0.0, -1.0, 1.0]])
+#: a closed end's ghost node by quadratic extrapolation: r_{-1} = 3 r_0 - 3 r_1 + r_2, r_{N+1} = 3 r_N - 3 r_{N-1} +
+#: r_{N-2} (the coefficients of the end node, its neighbour and the next)
+GHOST = np.array([3.0, -3.0, 1.0])
+
+
+@njit(cache=True, inline="always")
+def k_cr_weights(t, w):
+    """w[i] = the Catmull-Rom weight of node e-1+i at local coordinate t (any scalar type)."""
+    t2 = t * t
+    t3 = t2 * t
+    for i in range(4):
+        w[i] = CR[i, 0] + CR[i, 1] * t + CR[i, 2] * t2 + CR[i, 3] * t3
+
+
+@njit(cache=True, inline="always")
+def k_cr_basis(t, w, dw, d2w):
+    """The Catmull-Rom weights of nodes e-1..e+2 at local coordinate t (:func:`k_cr_weights`) and their first
+    (:func:`k_cr_dd` at equal ends) and second t-derivatives."""
+    k_cr_weights(t, w)
+    k_cr_dd(t, t, dw)
+    for i in range(4):
+        d2w[i] = 2.0 * CR[i, 2] + 6.0 * CR[i, 3] * t
+
+
+@njit(cache=True, inline="always")
+def k_cr_dd(a, b, w):
+    """w[i] = (N_i(b) - N_i(a)) / (b - a) in local coordinates, exact for a = b too (the derivative) and free of
+    cancellation: the polynomials' divided differences, (b^p - a^p)/(b - a) = sum_q a^q b^(p-1-q)."""
+    d2 = a + b
+    d3 = a * a + a * b + b * b
+    for i in range(4):
+        w[i] = CR[i, 1] + CR[i, 2] * d2 + CR[i, 3] * d3
+
+
+@njit(cache=True, inline="always")
+def k_cr_stencil(e, n_nodes, periodic, nodes):
+    """Nodes e-1..e+2 of element e's Catmull-Rom stencil into ``nodes`` (mod n_nodes when periodic); returns the slot
+    of a closed end's ghost (0: node -1, 3: node N+1), or -1.  :func:`k_fold_ghost` folds its weight."""
+    for i in range(4):
+        j = e - 1 + i
+        nodes[i] = j % n_nodes if periodic else j
+    if periodic:
+        return -1
+    if nodes[0] < 0:
+        nodes[0] = 2  # its weight stays on r_2 (GHOST[2]), the rest goes to nodes 0 and 1 (slots 1, 2)
+        return 0
+    if nodes[3] > n_nodes - 1:
+        nodes[3] = n_nodes - 3  # on r_{N-2}, the rest on nodes N and N-1 (slots 2, 1)
+        return 3
+    return -1
+
+
+@njit(cache=True, inline="always")
+def k_fold_ghost(slot, w):
+    """A closed end's ghost (:data:`GHOST`) in stencil ``slot`` (:func:`k_cr_stencil`) folded into the weights w (4,)
+    of the real nodes: the end node's and its neighbour's slots gain 3 w and -3 w; the slot keeps w for the third
+    node.  A node may then appear twice in the stencil (sums over entries are what count)."""
+    if slot < 0:
+        return
+    x = w[slot]
+    end, nbr = (1, 2) if slot == 0 else (2, 1)
+    w[end] += GHOST[0] * x
+    w[nbr] += GHOST[1] * x
+    w[slot] = GHOST[2] * x
+
+
+@njit(cache=True, inline="always")
+def k_stencil_point(r, node, e, i, n_nodes, periodic, period, d):
+    """Component d of the position of entry i of element e's stencil (its node ``node``): r_node, and on a periodic
+    tube the period (3,) times the wraps of the unwrapped node e - 1 + i (r_{j+N} = r_j + period)."""
+    if periodic:
+        return r[node, d] + ((e - 1 + i) // n_nodes) * period[d]
+    return r[node, d]
 
 
 @njit(cache=True)
 def k_centreline_weights(s, n_nodes, ds, periodic, nodes, N, dN, d2N):
-    b = np.empty(4)
-    db = np.empty(4)
-    d2b = np.empty(4)
     n_el = n_nodes if periodic else n_nodes - 1
     for k in range(s.shape[0]):
         e = int(math.floor(s[k] / ds))
         if not periodic:
             e = min(max(e, 0), n_el - 1)  # the closed end s = L belongs to the last element
         t = s[k] / ds - e
-        _cr_basis(t, b, db, d2b)
+        k_cr_basis(t, N[k], dN[k], d2N[k])
         for i in range(4):
-            N[k, i] = b[i]
-            dN[k, i] = db[i] / ds
-            d2N[k, i] = d2b[i] / (ds * ds)
-            j = e - 1 + i
-            nodes[k, i] = j % n_nodes if periodic else j
-        if not periodic:
-            # ghosts: r_{-1} = 3 r_0 - 3 r_1 + r_2 and r_{N+1} = 3 r_N - 3 r_{N-1} + r_{N-2}
-            last = n_nodes - 1
-            if nodes[k, 0] < 0:
-                _fold(k, 0, (0, 1, 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
-            if nodes[k, 3] > last:
-                _fold(k, 3, (last, last - 1, last - 2), (3.0, -3.0, 1.0), nodes, N, dN, d2N)
-
-
-@njit(cache=True)
-def _fold(k, slot, targets, coefs, nodes, N, dN, d2N):
-    """Replace the ghost in ``slot`` by coefs . (r of targets): the first two targets are already in
-    the stencil (their entries gain coef * weight), the slot itself takes the third."""
-    w, dw, d2w = N[k, slot], dN[k, slot], d2N[k, slot]
-    nodes[k, slot] = targets[2]
-    N[k, slot] = coefs[2] * w
-    dN[k, slot] = coefs[2] * dw
-    d2N[k, slot] = coefs[2] * d2w
-    for m in range(2):
-        for i in range(4):
-            if i != slot and nodes[k, i] == targets[m]:
-                N[k, i] += coefs[m] * w
-                dN[k, i] += coefs[m] * dw
-                d2N[k, i] += coefs[m] * d2w
-                break
+            dN[k, i] /= ds
+            d2N[k, i] /= ds * ds
+        ghost = k_cr_stencil(e, n_nodes, periodic, nodes[k])
+        k_fold_ghost(ghost, N[k])
+        k_fold_ghost(ghost, dN[k])
+        k_fold_ghost(ghost, d2N[k])
 
 
 # ---------------------------------------------------------------------------
@@ -161,14 +199,24 @@ def _fold(k, slot, targets, coefs, nodes, N, dN, d2N):
 
 
 def nodal_stretch(stretch_elements, periodic=False):
-    """gamma_j from element stretches |Gamma_e|: the mean of the elements at node j (§10.3)."""
-    g = np.asarray(stretch_elements, dtype=np.float64)
+    """gamma_j from element stretches |Gamma_e| (..., n_el): the mean of the elements at node j (§10.3), a closed
+    end node taking its one element's (leading batch axes, real or complex; the compiled kernels' entries:
+    :func:`k_stretch_weight`)."""
+    g = np.asarray(stretch_elements)
+    if not np.iscomplexobj(g):
+        g = g.astype(np.float64, copy=False)
     if periodic:
-        return 0.5 * (g + np.roll(g, 1))
-    out = np.empty(len(g) + 1)
-    out[0], out[-1] = g[0], g[-1]
-    out[1:-1] = 0.5 * (g[:-1] + g[1:])
-    return out
+        return 0.5 * (g + np.roll(g, 1, axis=-1))
+    return np.concatenate([g[..., :1], 0.5 * (g[..., :-1] + g[..., 1:]), g[..., -1:]], -1)
+
+
+@njit(cache=True, inline="always")
+def k_stretch_weight(j, n_nodes, periodic):
+    """T_je for j an end node of element e: the element's share of the nodal stretch gamma_j (:func:`nodal_stretch`):
+    1/2, but 1 at a closed tube's end nodes, which have one element only."""
+    if not periodic and (j == 0 or j == n_nodes - 1):
+        return 1.0
+    return 0.5
 
 
 def _prepare(s, R, gamma, ds, periodic):
@@ -220,39 +268,46 @@ def stretched_volume_derivatives(s, R, gamma, ds, periodic=False):
     return V, index, grad, hess
 
 
-@njit(cache=True)
-def _moments(t, M):
-    """M[q] = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, and their t-derivatives are the integrand."""
-    u = 1.0 - t
+#: M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, as coefficients of t^1..t^4 (row q): the element's moments
+#: of the stretched volume (module docstring), the one definition (:func:`k_moments`, :func:`k_moments_dd`)
+MQ = np.array([[1.0, -1.5, 1.0, -0.25],
+               [0.0, 0.5, -2.0 / 3.0, 0.25],
+               [0.0, 0.0, 1.0 / 3.0, -0.25],
+               [0.0, 0.0, 0.0, 0.25]])
+
+
+@njit(cache=True, inline="always")
+def k_moments(t, out):
+    """out[q] = M_q(t), q = 0..3 (any scalar type); their t-derivatives are the integrand (1 - t)^(3-q) t^q."""
     t2 = t * t
     t3 = t2 * t
     t4 = t3 * t
-    M[0] = 0.25 * (1.0 - u * u * u * u)
-    M[1] = 0.5 * t2 - 2.0 * t3 / 3.0 + 0.25 * t4
-    M[2] = t3 / 3.0 - 0.25 * t4
-    M[3] = 0.25 * t4
+    for q in range(4):
+        out[q] = MQ[q, 0] * t + MQ[q, 1] * t2 + MQ[q, 2] * t3 + MQ[q, 3] * t4
 
 
-@njit(cache=True)
-def _element_G(Rl, gl, t, ds):
-    """G_e(t) for the element's radii Rl[0:2] and stretches gl[0:2]."""
-    Mq = np.empty(4)
-    _moments(t, Mq)
-    G = 0.0
+@njit(cache=True, inline="always")
+def k_moments_dd(a, b, out):
+    """out[q] = (M_q(b) - M_q(a)) / (b - a), exact for a = b too and free of cancellation: the polynomials' divided
+    differences, (b^p - a^p)/(b - a) by dd_p = a dd_(p-1) + b^(p-1)."""
+    d2 = a + b
+    d3 = a * d2 + b * b
+    d4 = a * d3 + b * b * b
+    for q in range(4):
+        out[q] = MQ[q, 0] + MQ[q, 1] * d2 + MQ[q, 2] * d3 + MQ[q, 3] * d4
+
+
+@njit(cache=True, inline="always")
+def k_piece_volume(Ra, Rb, ga, gb, S, ds):
+    """The stretched volume of the piece of an element between two local coordinates, ds pi sum_(ijl) R_i R_j gamma_l
+    S_(i+j+l) over its end nodes i, j, l in {0, 1} (radii Ra, Rb and stretches ga, gb), S[q] = M_q(t_hi) - M_q(t_lo)
+    (:func:`k_moments`).  Any scalar type."""
+    acc = 0.0 * S[0]
     for i in range(2):
         for j in range(2):
             for l in range(2):
-                G += Rl[i] * Rl[j] * gl[l] * Mq[i + j + l]
-    return ds * math.pi * G
-
-
-@njit(cache=True)
-def _locate_el(x, ds, nR, periodic):
-    if periodic:
-        e = int(math.floor(x / ds))
-    else:
-        e = min(max(int(math.floor(x / ds)), 0), nR - 2)
-    return e, x / ds - e
+                acc += (Ra if i == 0 else Rb) * (Ra if j == 0 else Rb) * (ga if l == 0 else gb) * S[i + j + l]
+    return ds * math.pi * acc
 
 
 @njit(cache=True)
@@ -267,19 +322,41 @@ def _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl):
     return (t0 if e == e0 else 0.0), (t1 if e == e1 else 1.0)
 
 
+@njit(cache=True, inline="always")
+def k_whole_element(a, b, ga, gb):
+    """The whole element's stretched volume (:func:`k_piece_volume` over [0, 1]) times 12 / (ds pi),
+    ga (3a^2 + 2ab + b^2) + gb (a^2 + 2ab + 3b^2), with its first derivatives in (a, b, ga, gb) and its second ones
+    (a a, b b, a b, a ga, a gb, b ga, b gb; the rest vanish), for end radii a, b and stretches ga, gb: the tube's volume
+    under the external pressure (varint.terms.coupled).  Scalars or arrays (elementwise)."""
+    fa = 3 * a * a + 2 * a * b + b * b
+    fb = a * a + 2 * a * b + 3 * b * b
+    return (ga * fa + gb * fb, ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b), ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b),
+            fa, fb, 6 * ga + 2 * gb, 2 * ga + 6 * gb, 2 * ga + 2 * gb, 6 * a + 2 * b, 2 * a + 2 * b, 2 * a + 2 * b,
+            2 * a + 6 * b)
+
+
+@njit(cache=True)
+def _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml):
+    """V_k of the parcel [s_k, s_{k+1}]: its pieces on the elements it covers (:func:`k_piece_volume`)."""
+    nR = R.shape[0]
+    e0, t0, _ = k_locate(s[k], ds, nR, periodic)
+    e1, t1, _ = k_locate(s[k + 1], ds, nR, periodic)
+    v = 0.0
+    for e in range(e0, e1 + 1):
+        lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
+        k_moments(hi, Mh)
+        k_moments(lo, Ml)
+        for q in range(4):
+            Mh[q] -= Ml[q]
+        v += k_piece_volume(Rl[0], Rl[1], gl[0], gl[1], Mh, ds)
+    return v
+
+
 @njit(cache=True)
 def _k_stretched_volumes(s, R, gamma, ds, periodic, V):
-    nR = R.shape[0]
-    Rl = np.empty(2)
-    gl = np.empty(2)
+    Rl, gl, Mh, Ml = np.empty(2), np.empty(2), np.empty(4), np.empty(4)
     for k in range(s.shape[0] - 1):
-        e0, t0 = _locate_el(s[k], ds, nR, periodic)
-        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
-        v = 0.0
-        for e in range(e0, e1 + 1):
-            lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
-            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
-        V[k] = v
+        V[k] = _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml)
 
 
 @njit(cache=True)
@@ -290,7 +367,7 @@ def _add_element(Rl, gl, t, sign, ds, slot, n_nodes, g, H):
     element's first local node.
     """
     Mq = np.empty(4)
-    _moments(t, Mq)
+    k_moments(t, Mq)
     c = sign * ds * math.pi
     for i in range(2):
         iR = 2 + slot + i
@@ -339,11 +416,11 @@ def _add_end(Rl, gl, t, sign, ds, slot, n_nodes, label, g, H):
 def k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, hess):
     nR = R.shape[0]
     M = s.shape[0] - 1
-    Rl = np.empty(2)
-    gl = np.empty(2)
+    Rl, gl, Mh, Ml = np.empty(2), np.empty(2), np.empty(4), np.empty(4)
     for k in range(M):
-        e0, t0 = _locate_el(s[k], ds, nR, periodic)
-        e1, t1 = _locate_el(s[k + 1], ds, nR, periodic)
+        V[k] = _k_parcel_volume(s, R, gamma, ds, periodic, k, Rl, gl, Mh, Ml)
+        e0, t0, _ = k_locate(s[k], ds, nR, periodic)
+        e1, t1, _ = k_locate(s[k + 1], ds, nR, periodic)
         g = grad[k]
         H = hess[k]
         index[k, 0] = k
@@ -352,15 +429,12 @@ def k_stretched_derivatives(s, R, gamma, ds, periodic, n_nodes, V, index, grad, 
             node = (e0 + m) % nR if periodic else e0 + m
             index[k, 2 + m] = M + 1 + node
             index[k, 2 + n_nodes + m] = M + 1 + nR + node
-        v = 0.0
         for e in range(e0, e1 + 1):
             slot = e - e0
             lo, hi = _element_piece(R, gamma, e, e0, t0, e1, t1, periodic, Rl, gl)
-            v += _element_G(Rl, gl, hi, ds) - _element_G(Rl, gl, lo, ds)
             _add_element(Rl, gl, hi, 1.0, ds, slot, n_nodes, g, H)
             _add_element(Rl, gl, lo, -1.0, ds, slot, n_nodes, g, H)
             if e == e1:
                 _add_end(Rl, gl, t1, 1.0, ds, slot, n_nodes, 1, g, H)
             if e == e0:
                 _add_end(Rl, gl, t0, -1.0, ds, slot, n_nodes, 0, g, H)
-        V[k] = v

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["hat", "vee", "cay", "cay_inv", "dcay", "dcay_inv", "half", "cay_batch", "cay_inv_batch",
-           "orthogonality_error"]
+           "orthogonality_error", "k_hat", "k_cay", "k_cay_inv", "k_body"]
 
 
 def _arr(x):
@@ -84,22 +84,56 @@ def orthogonality_error(L):
 # numba kernels (batched, write into preallocated outputs)
 
 
+@njit(cache=True, inline="always")
+def k_body(L, v, i):
+    """Component i of L^T v: a spatial vector v in the body frame of L (any scalar type)."""
+    return L[0, i] * v[0] + L[1, i] * v[1] + L[2, i] * v[2]
+
+
+@njit(cache=True, inline="always")
+def k_hat(w, c, out):
+    """out = c hat(w) for one vector w (3,) into out (3, 3): :func:`hat` of the compiled kernels (any scalar type:
+    real, or complex for complex steps)."""
+    out[0, 0] = out[1, 1] = out[2, 2] = 0.0
+    out[0, 1], out[0, 2], out[1, 2] = -c * w[2], c * w[1], -c * w[0]
+    out[1, 0], out[2, 0], out[2, 1] = c * w[2], -c * w[1], c * w[0]
+
+
+@njit(cache=True, inline="always")
+def k_cay(w0, w1, w2, out):
+    """out = cay(w) for one w = (w0, w1, w2) into out (3, 3) (any scalar type): :func:`cay` of the compiled kernels,
+    I + c (W + W W / 2) with W = hat(w), c = 4 / (4 + |w|^2)."""
+    c = 4.0 / (4.0 + w0 * w0 + w1 * w1 + w2 * w2)
+    out[0, 0] = 1.0 - 0.5 * c * (w1 * w1 + w2 * w2)
+    out[1, 1] = 1.0 - 0.5 * c * (w0 * w0 + w2 * w2)
+    out[2, 2] = 1.0 - 0.5 * c * (w0 * w0 + w1 * w1)
+    out[0, 1] = c * (-w2 + 0.5 * w0 * w1)
+    out[1, 0] = c * (w2 + 0.5 * w0 * w1)
+    out[0, 2] = c * (w1 + 0.5 * w0 * w2)
+    out[2, 0] = c * (-w1 + 0.5 * w0 * w2)
+    out[1, 2] = c * (-w0 + 0.5 * w1 * w2)
+    out[2, 1] = c * (w0 + 0.5 * w1 * w2)
+
+
+@njit(cache=True, inline="always")
+def k_cay_inv(L, out):
+    """out = cay^-1(L) = 2 a / c for one L (3, 3) (any scalar type): :func:`cay_inv` of the compiled kernels.  Returns
+    (c, a0, a1, a2): c = 1 + tr L and a the axial vector of L - L^T (unhalved), the two pieces the energy-momentum
+    discrete gradient differentiates (varint.schemes.em_rod)."""
+    a0 = L[2, 1] - L[1, 2]
+    a1 = L[0, 2] - L[2, 0]
+    a2 = L[1, 0] - L[0, 1]
+    c = 1.0 + L[0, 0] + L[1, 1] + L[2, 2]
+    f = 2.0 / c
+    out[0], out[1], out[2] = f * a0, f * a1, f * a2
+    return c, a0, a1, a2
+
+
 @njit(cache=True)
 def cay_batch(w, out):
     """out[i] = cay(w[i]) for w (n, 3), out (n, 3, 3)."""
     for i in range(w.shape[0]):
-        x, y, z = w[i, 0], w[i, 1], w[i, 2]
-        c = 4.0 / (4.0 + x * x + y * y + z * z)
-        # W + W W / 2 with W = hat(w)
-        out[i, 0, 0] = 1.0 + c * 0.5 * (-y * y - z * z)
-        out[i, 1, 1] = 1.0 + c * 0.5 * (-x * x - z * z)
-        out[i, 2, 2] = 1.0 + c * 0.5 * (-x * x - y * y)
-        out[i, 0, 1] = c * (-z + 0.5 * x * y)
-        out[i, 1, 0] = c * (z + 0.5 * x * y)
-        out[i, 0, 2] = c * (y + 0.5 * x * z)
-        out[i, 2, 0] = c * (-y + 0.5 * x * z)
-        out[i, 1, 2] = c * (-x + 0.5 * y * z)
-        out[i, 2, 1] = c * (x + 0.5 * y * z)
+        k_cay(w[i, 0], w[i, 1], w[i, 2], out[i])
     return out
 
 
@@ -107,8 +141,5 @@ def cay_batch(w, out):
 def cay_inv_batch(L, out):
     """out[i] = cay^-1(L[i]) for L (n, 3, 3), out (n, 3)."""
     for i in range(L.shape[0]):
-        f = 2.0 / (1.0 + L[i, 0, 0] + L[i, 1, 1] + L[i, 2, 2])
-        out[i, 0] = f * (L[i, 2, 1] - L[i, 1, 2])
-        out[i, 1] = f * (L[i, 0, 2] - L[i, 2, 0])
-        out[i, 2] = f * (L[i, 1, 0] - L[i, 0, 1])
+        k_cay_inv(L[i], out[i])
     return out

@@ -45,6 +45,8 @@ __all__ = [
     "parcel_volumes_reference",
     "tube_volume",
     "radius_at",
+    "k_locate",
+    "volume_below",
 ]
 
 
@@ -157,7 +159,7 @@ def tube_volume(R, ds, periodic):
     """Exact volume of the whole tube and its gradient and (tridiagonal) Hessian in R."""
     a = R if periodic else R[:-1]
     b = np.roll(R, -1) if periodic else R[1:]
-    vol = ds * math.pi * np.sum(a * a + a * b + b * b) / 3.0
+    vol = float(np.sum(_full(a, b, ds)))  # the kernels' whole element, on the arrays
     grad = np.zeros_like(R)
     ga = ds * math.pi * (2 * a + b) / 3.0
     gb = ds * math.pi * (a + 2 * b) / 3.0
@@ -208,7 +210,7 @@ def parcel_volumes_reference(s, R, ds, periodic):
 
 
 @njit(cache=True, inline="always")
-def _locate(x, ds, nR, periodic):
+def k_locate(x, ds, nR, periodic):
     """Element index (unwrapped for periodic tubes), local coordinate t of x, and whether x can be located.
 
     A closed tube's index is clamped to its elements (labels beyond the ends extrapolate the
@@ -248,8 +250,37 @@ def _node(e, nR, periodic):
 
 @njit(cache=True, inline="always")
 def _g(a, b, t, ds):
+    """int_0^t pi R^2 ds on an element of end radii a, b (R linear), to local coordinate t: the element integral."""
     d = b - a
     return ds * math.pi * (a * a * t + a * d * t * t + d * d * t * t * t / 3.0)
+
+
+@njit(cache=True, inline="always")
+def _full(a, b, ds):
+    """The whole element's volume, :func:`_g` at t = 1 written without cancellation."""
+    return ds * math.pi * (a * a + a * b + b * b) / 3.0
+
+
+@njit(cache=True)
+def _k_volume_below(x, R, ds, out):
+    """out[k] = int_0^x_k pi R^2 ds on a closed tube (the end elements extrapolated beyond its ends; NaN where x_k
+    cannot be located)."""
+    nR = R.shape[0]
+    F = np.zeros(nR)
+    for e in range(nR - 1):
+        F[e + 1] = F[e] + _full(R[e], R[e + 1], ds)
+    for k in range(x.shape[0]):
+        e, t, ok = k_locate(x[k], ds, nR, False)
+        out[k] = F[e] + _g(R[e], R[e + 1], t, ds) if ok else np.nan
+
+
+def volume_below(x, R, ds):
+    """F(x) = int_0^x pi R(s)^2 ds on a closed tube of nodal radii R, at positions x (any shape; beyond the ends the
+    end elements are extrapolated): the parcel kernels' element integrals, so F(s_{k+1}) - F(s_k) is V_k."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty(x.size)
+    _k_volume_below(np.ascontiguousarray(x.ravel()), np.ascontiguousarray(R, dtype=np.float64), float(ds), out)
+    return out.reshape(x.shape)
 
 
 @njit(cache=True)
@@ -258,18 +289,16 @@ def _volumes(s, R, ds, periodic, V):
     _check_shapes(s.shape[0], nR, periodic, ds)
     if V.shape[0] < s.shape[0] - 1:
         raise ValueError("parcel kernels: V is shorter than the number of parcels")
-    e1, t1, ok1 = _locate(s[0], ds, nR, periodic)
+    e1, t1, ok1 = k_locate(s[0], ds, nR, periodic)
     for k in range(s.shape[0] - 1):
         e0, t0, ok0 = e1, t1, ok1  # each label is located once
-        e1, t1, ok1 = _locate(s[k + 1], ds, nR, periodic)
+        e1, t1, ok1 = k_locate(s[k + 1], ds, nR, periodic)
         if not _parcel_ok(s[k], s[k + 1], e0, e1, ok0, ok1, nR, periodic):
             V[k] = np.nan
             continue
         v = 0.0
         for e in range(e0, e1):
-            a = R[_node(e, nR, periodic)]
-            b = R[_node(e + 1, nR, periodic)]
-            v += ds * math.pi * (a * a + a * b + b * b) / 3.0
+            v += _full(R[_node(e, nR, periodic)], R[_node(e + 1, nR, periodic)], ds)
         a1 = R[_node(e1, nR, periodic)]
         b1 = R[_node(e1 + 1, nR, periodic)]
         a0 = R[_node(e0, nR, periodic)]
@@ -357,10 +386,10 @@ def _derivatives(s, R, ds, periodic, c1, c2, want_R, want_hessian):
     nh = 0
     nj = 0
     nmax = 4
-    ea, ta, oka = _locate(s[0], ds, nR, periodic)
+    ea, ta, oka = k_locate(s[0], ds, nR, periodic)
     for k in range(M):
         e0, t0, ok0 = ea, ta, oka  # each label is located once
-        e1, t1, ok1 = _locate(s[k + 1], ds, nR, periodic)
+        e1, t1, ok1 = k_locate(s[k + 1], ds, nR, periodic)
         ea, ta, oka = e1, t1, ok1
         ok[k] = _parcel_ok(s[k], s[k + 1], e0, e1, ok0, ok1, nR, periodic)
         if not ok[k]:  # a NaN block on one element keeps every index in range

@@ -180,14 +180,19 @@ class Model:
             u[0] = t.U_in  # the inlet's piston
         if t.periodic:
             u[-1] = u[0]
+        from ..terms.coupled import label_velocity_map
+
         nodes, Nw, dNw, X, dX, _ = self.centreline(cfg.s, rod.r0)
         sdot = u / np.linalg.norm(dX, axis=1)
         v_nodes = rod.v0 * rod.mask[:, :3]  # a held node does not move, whatever rod.initial.velocity says
-        Xdot = np.einsum("ka,kac->kc", Nw, v_nodes[nodes]) + dX * sdot[:, None]
+        # the kinetic metric's map (the one construction, varint.terms.coupled): Xdot = Jx vel, p = Jx^T mbar Xdot
+        n1 = rod.N + 1
+        Jx = label_velocity_map(nodes, Nw, dX, n1)
+        vel = np.concatenate([np.concatenate([v_nodes, np.zeros((n1, 3))], axis=1).ravel(), sdot])
+        Xdot = (Jx @ vel).reshape(-1, 3)
         mbar = t.label_mass_all
-        rod_p = np.zeros((rod.N + 1, 3))
-        np.add.at(rod_p, nodes.ravel(), ((mbar[:, None] * Nw)[:, :, None] * Xdot[:, None, :]).reshape(-1, 3))
-        return {"rod_p": rod_p, "label_p": mbar * np.sum(Xdot * dX, axis=1), "sdot": sdot, "Xdot": Xdot,
+        p = Jx.T @ (np.repeat(mbar, 3) * Xdot.ravel())
+        return {"rod_p": p[:6 * n1].reshape(n1, 6)[:, :3].copy(), "label_p": p[6 * n1:], "sdot": sdot, "Xdot": Xdot,
                 "kinetic": 0.5 * float(np.sum(mbar * np.sum(Xdot * Xdot, axis=1)))}
 
     @property
@@ -201,13 +206,11 @@ class Model:
 
     def open_volumes(self, s, Lam, r):
         """The stretched volumes of the open coupled tube's parcels (labels ``s``) on the extended lattice (§13.1)."""
-        from ..lattice.centreline import stretched_volumes
-        from ..terms.coupled import element_strains, stretch_map
+        from ..terms.coupled import element_strains, stretched_volumes_of
 
         ext = self.tube.ext
         G, _, _ = element_strains(ext.frames(Lam), ext.positions(r), self.tube.ds)
-        gamma = stretch_map(ext.n_ext, False) @ np.linalg.norm(G, axis=1)
-        return stretched_volumes(np.asarray(s) + ext.shift, ext.pad(self.tube.R_reference), gamma, self.tube.ds, False)
+        return stretched_volumes_of(np.asarray(s) + ext.shift, ext.pad(self.tube.R_reference), G, self.tube.ds, False)
 
     def centreline(self, s, r):
         """``centreline_and_weights`` of the labels ``s`` on the rod positions ``r`` (N+1, 3): a periodic tube's

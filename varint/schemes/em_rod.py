@@ -43,9 +43,9 @@ import scipy.sparse.linalg as spla
 
 from ..errors import SolverError
 from .base import MAX_HALVINGS
-from ..terms.rod import origin_shift
+from ..lattice.lie import hat, k_hat
+from ..terms.rod import CHI, k_gamma, k_strains_row, k_turn, level_strains, origin_shift
 
-CHI = np.array([1.0, 0.0, 0.0])
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 NV = 18  # unknowns per node: r (3), D (9, row-major Lambda), lambda (6)
 NC = 3  # with rod.constraint: the element forces mu_e (Gamma_e = chi), kept in the block of the element's first node
@@ -79,7 +79,7 @@ def supports(model):
 def straight_tube_supports(model):
     """The straight tube's energy-momentum step (the midpoint step with discrete-gradient pressures, docs/theory.md
     §12d): None where it is built, else the reason naming the key."""
-    t, sc = model.tube, model.scene
+    t = model.tube
     if t.eos is None or not t.eos.has_entropy:
         return ("time.scheme: 'energy-momentum' on the straight tube needs an ideal gas (fluid.model = 'ideal-gas'): "
                 "its discrete-gradient pressure is the ideal gas's mean-value pressure; a liquid runs 'midpoint'")
@@ -91,14 +91,8 @@ def straight_tube_supports(model):
     return None
 
 
-def _axial(S):
-    return np.stack([S[..., 2, 1] - S[..., 1, 2], S[..., 0, 2] - S[..., 2, 0], S[..., 1, 0] - S[..., 0, 1]], axis=-1)
-
-
-def _hat(a):
-    z = np.zeros_like(a[..., 0])
-    return np.stack([np.stack([z, -a[..., 2], a[..., 1]], -1), np.stack([a[..., 2], z, -a[..., 0]], -1),
-                     np.stack([-a[..., 1], a[..., 0], z], -1)], axis=-2)
+#: varint.lattice.lie.hat under the name the step classes' constructors (here and in em_tube) and rigid_correction read
+_hat = hat
 
 
 def _T(A):
@@ -106,15 +100,10 @@ def _T(A):
 
 
 def strains(r, D, ds):
-    """Element strains of the director configuration (any D, orthonormal or not): Omega, Gamma, and a, c of
-    Omega = (2/ds) a/c."""
-    Da, Db = D[..., :-1, :, :], D[..., 1:, :, :]
-    dr = r[..., 1:, :] - r[..., :-1, :]
-    Ga = np.einsum("...ji,...j->...i", 0.5 * (Da + Db), dr) / ds
-    R = _T(Da) @ Db
-    a = _axial(R)
-    c = 1.0 + R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
-    return 2.0 * a / (c[..., None] * ds), Ga, a, c
+    """Element strains of the director configuration (any D, orthonormal or not; leading batch axes, real or complex):
+    Omega, Gamma, and a, c of Omega = (2/ds) a/c (varint.terms.rod.level_strains, the rod's own)."""
+    st = level_strains(D, r, ds)
+    return st.Omega, st.Gamma, st.a, st.c
 
 
 def potential(r, D, ds, Jd, Kd):
@@ -126,37 +115,30 @@ def potential(r, D, ds, Jd, Kd):
 
 def discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, mu=None):
     """grad_d U(q_0, q_1) = (F_r (.., N+1, 3), F_D (.., N+1, 3, 3)) with
-    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a).
+    U(q_1) - U(q_0) = sum F_r . (r_1 - r_0) + F_D : (D_1 - D_0) identically (docs/theory.md §12a); leading batch axes
+    broadcast, real or complex (the compiled :func:`rod_discrete_gradient`, :func:`k_dg_row` on each row).
 
     With ``mu`` (.., N, 3), the element forces of rod.constraint, also the constraint's force
     ds G_Gamma(q_bar)^T mu (Gamma is bilinear: its midpoint derivative maps q_1 - q_0 exactly onto Gamma_1 - Gamma_0,
     so this force does no work when both levels hold Gamma = chi): it enters exactly as a stress added to n."""
-    Om0, Ga0, a0, c0 = strains(r0, D0, ds)
-    Om1, Ga1, a1, c1 = strains(r1, D1, ds)
-    rb, Db = 0.5 * (r0 + r1), 0.5 * (D0 + D1)
-    n = Kd * (0.5 * (Ga0 + Ga1) - CHI)  # stress at the mean strain
-    if mu is not None:
-        n = n + mu
-    m = Jd * 0.5 * (Om0 + Om1)
-    # stretch-shear: ds n . dGamma, dGamma = 1/2 (Db_a + Db_b)^T (dr_b - dr_a)/ds + 1/2 (dD_a + dD_b)^T (rb_b - rb_a)/ds
-    Fr = np.zeros(np.broadcast_shapes(r0.shape, r1.shape), dtype=np.result_type(r0, r1, D0, D1))
-    FD = np.zeros(Fr.shape[:-1] + (3, 3), dtype=Fr.dtype)
-    Dm = 0.5 * (Db[..., :-1, :, :] + Db[..., 1:, :, :])
-    fn = np.einsum("...ij,...j->...i", Dm, n)
-    Fr[..., 1:, :] += fn
-    Fr[..., :-1, :] -= fn
-    drb = rb[..., 1:, :] - rb[..., :-1, :]
-    G = 0.5 * drb[..., :, None] * n[..., None, :]
-    FD[..., :-1, :, :] += G
-    FD[..., 1:, :, :] += G
-    # bending-torsion: ds m . dOmega = alpha . da + beta dc, with R = D_a^T D_b bilinear
-    cc = c0 * c1
-    alpha = 2.0 * (0.5 * (c0 + c1))[..., None] * m / cc[..., None]
-    beta = -2.0 * np.sum(0.5 * (a0 + a1) * m, -1) / cc
-    Phi = _hat(alpha) + beta[..., None, None] * np.eye(3)  # d(alpha.a + beta c)/dR
-    FD[..., :-1, :, :] += Db[..., 1:, :, :] @ _T(Phi)
-    FD[..., 1:, :, :] += Db[..., :-1, :, :] @ Phi
-    return Fr, FD
+    r0, D0, r1, D1 = (np.asarray(x) for x in (r0, D0, r1, D1))
+    mu = None if mu is None else np.asarray(mu)
+    n = r1.shape[-2]
+    dt = np.result_type(r0, D0, r1, D1, np.float64, *(() if mu is None else (mu,)))
+    level_batch = np.broadcast_shapes(r0.shape[:-2], D0.shape[:-3])
+    batch = np.broadcast_shapes(level_batch, r1.shape[:-2], D1.shape[:-3], *(() if mu is None else (mu.shape[:-2],)))
+
+    def rows(x, b, tail):
+        return np.ascontiguousarray(np.broadcast_to(x, b + tail), dtype=dt).reshape((-1,) + tail)
+
+    lb = batch if level_batch else ()  # a level without batch axes is read by every row, not copied
+    stress = np.zeros(batch + (n - 1, 3), dt) if mu is None else mu
+    B = int(np.prod(batch, dtype=int))
+    Fr, FD = np.empty((B, n, 3), dt), np.empty((B, n, 3, 3), dt)
+    rod_discrete_gradient(rows(r0, lb, (n, 3)), rows(D0, lb, (n, 3, 3)), rows(r1, batch, (n, 3)),
+                          rows(D1, batch, (n, 3, 3)), float(ds), np.asarray(Jd, dtype=np.float64),
+                          np.asarray(Kd, dtype=np.float64), rows(stress, batch, (n - 1, 3)), Fr, FD)
+    return Fr.reshape(batch + (n, 3)), FD.reshape(batch + (n, 3, 3))
 
 
 def body_angular_velocity(D, V):
@@ -753,16 +735,18 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
     # scratch, allocated once per call (not per element: the allocations were a third of the kernel's time)
     r1 = np.empty((N1, 3), dtype=z.dtype)
     D1 = np.empty((N1, 3, 3), dtype=z.dtype)
-    G0 = np.empty(3, dtype=z.dtype)
-    G1 = np.empty(3, dtype=z.dtype)
-    A0 = np.empty(3, dtype=z.dtype)
-    A1 = np.empty(3, dtype=z.dtype)
-    R0 = np.empty((3, 3), dtype=z.dtype)
-    R1 = np.empty((3, 3), dtype=z.dtype)
-    nn = np.empty(3, dtype=z.dtype)
-    mm = np.empty(3, dtype=z.dtype)
-    Dak = np.empty(3, dtype=z.dtype)
-    Dbk = np.empty(3, dtype=z.dtype)
+    Fr = np.empty((N1, 3), dtype=z.dtype)
+    FD = np.empty((N1, 3, 3), dtype=z.dtype)
+    Dbar = np.empty((N1, 3, 3), dtype=z.dtype)
+    G1 = np.empty((N1 - 1, 3), dtype=z.dtype)
+    stress = np.empty((N1 - 1, 3), dtype=z.dtype)
+    W = np.empty((7, 3), dtype=z.dtype)
+    M = np.empty((2, 3, 3), dtype=z.dtype)
+    # the level's strains (real), the same for every row
+    Om0, G0, pa, pb, a0 = (np.empty((N1 - 1, 3)), np.empty((N1 - 1, 3)), np.empty((N1 - 1, 3)), np.empty((N1 - 1, 3)),
+                           np.empty((N1 - 1, 3)))
+    c0 = np.empty(N1 - 1)
+    k_level_strains(r0, D0, ds, Om0, G0, pa, pb, a0, c0, np.empty((3, 3)), np.empty(3), np.empty(3))
     for b in range(B):
         zb = z[b]
         ob = out[b]
@@ -802,65 +786,102 @@ def _k_residual(r0, D0, v0, V0, m, E, z, h, ds, Jd, Kd, nv, out):
                     a1, a2 = 1, 2
                 s = D1[j, 0, a1] * D1[j, 0, a2] + D1[j, 1, a1] * D1[j, 1, a2] + D1[j, 2, a1] * D1[j, 2, a2]
                 ob[o + 12 + p] = s - (1.0 if a1 == a2 else 0.0)
+        # the rod's discrete gradient (its stress: rod.constraint's mu_e; its rows Gamma_e(q_1) - chi)
         for e in range(N1 - 1):
-            oa, obb = nv * e, nv * (e + 1)
-            # level strains: Gamma, a, c at both levels
-            G0[:] = 0.0
-            G1[:] = 0.0
-            R0[:, :] = 0.0
-            R1[:, :] = 0.0
             for i in range(3):
-                for k in range(3):
-                    G0[i] += 0.5 * (D0[e, k, i] + D0[e + 1, k, i]) * (r0[e + 1, k] - r0[e, k]) / ds
-                    G1[i] += 0.5 * (D1[e, k, i] + D1[e + 1, k, i]) * (r1[e + 1, k] - r1[e, k]) / ds
-                    for l in range(3):
-                        R0[i, k] += D0[e, l, i] * D0[e + 1, l, k]
-                        R1[i, k] += D1[e, l, i] * D1[e + 1, l, k]
-            A0[0], A0[1], A0[2] = R0[2, 1] - R0[1, 2], R0[0, 2] - R0[2, 0], R0[1, 0] - R0[0, 1]
-            A1[0], A1[1], A1[2] = R1[2, 1] - R1[1, 2], R1[0, 2] - R1[2, 0], R1[1, 0] - R1[0, 1]
-            c0 = 1.0 + R0[0, 0] + R0[1, 1] + R0[2, 2]
-            c1 = 1.0 + R1[0, 0] + R1[1, 1] + R1[2, 2]
-            cc = c0 * c1
-            for i in range(3):
-                nn[i] = Kd[i] * (0.5 * (G0[i] + G1[i]) - (1.0 if i == 0 else 0.0))
-                if nv > 18:  # rod.constraint: its force is a stress mu_e added to n; its rows Gamma_e(q_1) - chi
-                    nn[i] += zb[oa + 18 + i]
-                    ob[oa + 18 + i] = G1[i] - (1.0 if i == 0 else 0.0)
-                mm[i] = Jd[i] * 0.5 * (2.0 * A0[i] / (c0 * ds) + 2.0 * A1[i] / (c1 * ds))
-            beta = 0.0 * c0
-            for i in range(3):
-                beta += -2.0 * 0.5 * (A0[i] + A1[i]) * mm[i] / cc
-            al0 = 2.0 * 0.5 * (c0 + c1) * mm[0] / cc
-            al1 = 2.0 * 0.5 * (c0 + c1) * mm[1] / cc
-            al2 = 2.0 * 0.5 * (c0 + c1) * mm[2] / cc
-            # Phi = hat(alpha) + beta I
-            P00, P01, P02 = beta, -al2, al1
-            P10, P11, P12 = al2, beta, -al0
-            P20, P21, P22 = -al1, al0, beta
-            for k in range(3):  # spatial row k
+                stress[e, i] = zb[nv * e + 18 + i] if nv > 18 else 0.0
+        k_dg_row(r0, D0, Om0, G0, a0, c0, r1, D1, ds, Jd, Kd, stress, Fr, FD, G1, Dbar, W, M)
+        for j in range(N1):
+            o = nv * j
+            for k in range(3):
+                ob[o + k] += h * Fr[j, k]
                 for i in range(3):
-                    Dak[i] = 0.5 * (D0[e, k, i] + D1[e, k, i])
-                    Dbk[i] = 0.5 * (D0[e + 1, k, i] + D1[e + 1, k, i])
-                fn = 0.0 * c0
+                    ob[o + 3 + 3 * k + i] += h * FD[j, k, i]
+            if nv > 18 and j < N1 - 1:
                 for i in range(3):
-                    fn += 0.5 * (Dak[i] + Dbk[i]) * nn[i]
-                ob[obb + k] += h * fn
-                ob[oa + k] -= h * fn
-                drb = 0.5 * (r0[e + 1, k] + r1[e + 1, k]) - 0.5 * (r0[e, k] + r1[e, k])
-                # F_Da[k, i] += 1/2 drb_k n_i + (Db_b Phi^T)[k, i];  F_Db[k, i] += 1/2 drb_k n_i + (Db_a Phi)[k, i]
-                for i in range(3):
-                    g = 0.5 * drb * nn[i]
-                    if i == 0:
-                        pa = Dbk[0] * P00 + Dbk[1] * P01 + Dbk[2] * P02
-                        pb = Dak[0] * P00 + Dak[1] * P10 + Dak[2] * P20
-                    elif i == 1:
-                        pa = Dbk[0] * P10 + Dbk[1] * P11 + Dbk[2] * P12
-                        pb = Dak[0] * P01 + Dak[1] * P11 + Dak[2] * P21
-                    else:
-                        pa = Dbk[0] * P20 + Dbk[1] * P21 + Dbk[2] * P22
-                        pb = Dak[0] * P02 + Dak[1] * P12 + Dak[2] * P22
-                    ob[oa + 3 + 3 * k + i] += h * (g + pa)
-                    ob[obb + 3 + 3 * k + i] += h * (g + pb)
+                    ob[o + 18 + i] = G1[j, i] - CHI[i]
+
+
+@njit(cache=True, inline="always")
+def k_dg_row(r0, D0, Om0, G0, a0, c0, r1, D1, ds, Jd, Kd, stress, Fr, FD, G1, Dbar, W, M):
+    """The rod's discrete gradient grad_d U(q_0, q_1) (docs/theory.md §12a) of U = sum_e ds (1/2 Omega.J Omega +
+    1/2 (Gamma - chi).K (Gamma - chi)) between a level (r0 (N+1, 3), D0 (N+1, 3, 3), with its strains Om0, G0, a0
+    (N, 3), c0 (N,) from varint.terms.rod.k_strains_row) and a configuration (r1, D1), with ``stress`` (N, 3) added to
+    the mean-strain stress n: Fr (N+1, 3) and FD (N+1, 3, 3) receive the forces on the positions and the directors,
+    G1 (N, 3) Gamma at (r1, D1).  The strains are the rod's (varint.terms.rod.k_gamma, k_turn): Gamma and R = D_a^T D_b
+    are bilinear, so their midpoint derivatives map q_1 - q_0 exactly onto the strain changes, and Omega = 2 a / (c ds)
+    uses a_1/c_1 - a_0/c_0 = (c_bar da - a_bar dc)/(c_0 c_1).  Scratch of the scalar type of (r1, D1): Dbar
+    (N+1, 3, 3), W (7, 3), M (2, 3, 3).  :func:`rod_discrete_gradient` on a batch, and the rod's residual."""
+    N = r1.shape[0] - 1
+    d1, a1, om1, n, m, drb, al = W[0], W[1], W[2], W[3], W[4], W[5], W[6]
+    T, Phi = M[0], M[1]
+    for j in range(N + 1):
+        for p in range(3):
+            Fr[j, p] = 0.0
+            for q in range(3):
+                FD[j, p, q] = 0.0
+                Dbar[j, p, q] = 0.5 * (D0[j, p, q] + D1[j, p, q])
+    for e in range(N):
+        for i in range(3):
+            d1[i] = r1[e + 1, i] - r1[e, i]
+        k_gamma(D1[e], D1[e + 1], d1, ds, G1[e])
+        c1, a1[0], a1[1], a1[2] = k_turn(D1[e], D1[e + 1], T, om1)
+        icc = 1.0 / (c0[e] * c1)
+        beta = 0.0 * icc
+        for i in range(3):
+            n[i] = Kd[i] * (0.5 * (G0[e, i] + G1[e, i]) - CHI[i]) + stress[e, i]  # the stress at the mean strain
+            m[i] = Jd[i] * 0.5 * (Om0[e, i] + om1[i] / ds)  # the couple at the mean curvature
+            drb[i] = 0.5 * (r0[e + 1, i] + r1[e + 1, i]) - 0.5 * (r0[e, i] + r1[e, i])
+            # bending-torsion: ds m . dOmega = alpha . da + beta dc, with R = D_a^T D_b bilinear
+            al[i] = (c0[e] + c1) * m[i] * icc
+            beta += -(a0[e, i] + a1[i]) * m[i] * icc
+        for i in range(3):
+            # stretch-shear: ds n . dGamma, dGamma = 1/2 (Db_a + Db_b)^T (dr_b - dr_a)/ds + 1/2 (dD_a + dD_b)^T drb/ds
+            f = 0.0 * icc
+            for j in range(3):
+                f += 0.5 * (Dbar[e, i, j] + Dbar[e + 1, i, j]) * n[j]
+            Fr[e + 1, i] += f
+            Fr[e, i] -= f
+            for j in range(3):
+                g = 0.5 * drb[i] * n[j]
+                FD[e, i, j] += g
+                FD[e + 1, i, j] += g
+        k_hat(al, 1.0, Phi)  # Phi = hat(alpha) + beta I: the derivative of alpha . a + beta c in R
+        for i in range(3):
+            Phi[i, i] = beta
+        for i in range(3):
+            for j in range(3):
+                FD[e, i, j] += Dbar[e + 1, i, 0] * Phi[j, 0] + Dbar[e + 1, i, 1] * Phi[j, 1] + Dbar[e + 1, i, 2] * Phi[j, 2]
+                FD[e + 1, i, j] += Dbar[e, i, 0] * Phi[0, j] + Dbar[e, i, 1] * Phi[1, j] + Dbar[e, i, 2] * Phi[2, j]
+
+
+@njit(cache=True, inline="always")
+def k_level_strains(r0, D0, ds, Om0, G0, pa, pb, a0, c0, T, d, om):
+    """The level's strains that :func:`k_dg_row` reads (varint.terms.rod.k_strains_row of a closed rod)."""
+    k_strains_row(D0, r0, ds, False, d, Om0, G0, pa, pb, a0, c0, T, d, om)
+
+
+@njit(cache=True)
+def rod_discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress, Fr, FD):
+    """grad_d U of the rod (:func:`k_dg_row`) between the level (r0 (B0, N+1, 3), D0 (B0, N+1, 3, 3): one row read by
+    every row of the batch, or one per row) and each row b of (r1 (B, N+1, 3), D1 (B, N+1, 3, 3)), with stress (B, N, 3)
+    added to the mean-strain stress n: Fr (B, N+1, 3), FD (B, N+1, 3, 3).  :func:`discrete_gradient` of NumPy arrays,
+    and the coupled tube's energy-momentum residual (varint.schemes.em_tube: the fluid's stress, rod.constraint's mu)."""
+    N = r1.shape[1] - 1
+    dt = Fr.dtype
+    l0 = D0.dtype
+    Om0, G0, pa, pb, a0 = (np.empty((N, 3), l0), np.empty((N, 3), l0), np.empty((N, 3), l0), np.empty((N, 3), l0),
+                           np.empty((N, 3), l0))
+    c0, T0, d0, om0 = np.empty(N, l0), np.empty((3, 3), l0), np.empty(3, l0), np.empty(3, l0)
+    G1 = np.empty((N, 3), dt)
+    Dbar = np.empty((N + 1, 3, 3), dt)
+    W = np.empty((7, 3), dt)
+    M = np.empty((2, 3, 3), dt)
+    for b in range(r1.shape[0]):
+        b0 = b if r0.shape[0] > 1 else 0
+        if b == b0:  # the level's strains: once, or per row
+            k_level_strains(r0[b0], D0[b0], ds, Om0, G0, pa, pb, a0, c0, T0, d0, om0)
+        k_dg_row(r0[b0], D0[b0], Om0, G0, a0, c0, r1[b], D1[b], ds, Jd, Kd, stress[b], Fr[b], FD[b], G1, Dbar, W, M)
 
 
 @njit(cache=True)

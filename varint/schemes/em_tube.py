@@ -38,9 +38,10 @@ refreshed when the contraction is slower than 1/2; the Jacobian by complex step 
 (the pattern by location from the stencils, :meth:`TubeEMStep._cliques`; ~110 batched residuals at 20 or 40
 elements with a liquid), each one checked against a random directional derivative in the same batch; a rigid
 correction of the solution zeroes the momentum balances.  The residual's three heavy parts (the fluid's pairs, the
-labels' constraint, the rod's discrete gradient) run as compiled loops (varint/schemes/em_tube_kernels.py) on real iterates
-and on the Jacobian's complex batches; the numpy code beside them is the reference (``compiled = False``), tested
-equal to round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
+labels' constraint, the rod's discrete gradient) run as compiled loops (varint/schemes/em_tube_kernels.py; the rod's
+discrete gradient is the rod's own, varint.schemes.em_rod.rod_discrete_gradient) on real iterates and on the Jacobian's
+complex batches; the numpy code beside the first two is the reference (``compiled = False``), tested equal to
+round-off.  A residual is then ~0.6-0.8 ms at 12-20 elements, and the 15-20 chord iterations per step and
 a Jacobian every 1-4 steps share the cost (docs/performance.md, "The coupled tube's energy-momentum step").
 """
 
@@ -53,24 +54,16 @@ import scipy.sparse.linalg as spla
 from . import em_rod
 from . import em_tube_kernels as kernels
 from ..errors import SolverError
+from ..lattice.centreline import CR, GHOST, MQ, nodal_stretch
 from ..terms.coupled_shock_capturing import CoupledShockCapturing
 from ..terms.rod import origin_shift
 from ..terms.shock_capturing import heated_entropy, viscous_pressure_q
-from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step, potential, rigid_correction, strains, tip_torque_forces)
+from .em_rod import (CHI, _PAIRS, _T, _hat, body_angular_velocity, chord_newton, director_masses, discrete_gradient, em_step,
+                     potential, rigid_correction, rod_discrete_gradient, strains, tip_torque_forces)
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # on [0, 1]
 
-# M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau, q = 0..3, as coefficients of t^1..t^4 (theory §10.3)
-_MQ = np.array([[1.0, -1.5, 1.0, -0.25],
-                [0.0, 0.5, -2.0 / 3.0, 0.25],
-                [0.0, 0.0, 1.0 / 3.0, -0.25],
-                [0.0, 0.0, 0.0, 0.25]])
-# Catmull-Rom weights of nodes e-1, e, e+1, e+2 as coefficients of t^0..t^3 (theory §10.2)
-_CR = 0.5 * np.array([[0.0, -1.0, 2.0, -1.0],
-                      [2.0, 0.0, -5.0, 3.0],
-                      [0.0, 1.0, 4.0, -3.0],
-                      [0.0, 0.0, -1.0, 1.0]])
 
 
 # -- exact, cancellation-free divided differences ------------------------------------------------------------------
@@ -98,12 +91,12 @@ def _pows(t, lo, hi):
 
 def _cr(t):
     """The four Catmull-Rom weights (nodes e-1..e+2) at local coordinates t (.., 4)."""
-    return np.einsum("...p,ip->...i", _pows(t, 0, 3), _CR)
+    return np.einsum("...p,ip->...i", _pows(t, 0, 3), CR)
 
 
 def _cr_dd(a, b):
     """Their divided differences between a and b (.., 4), without cancellation."""
-    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), _CR[:, 1:])
+    return np.einsum("...p,ip->...i", _pows_dd(a, b, 3), CR[:, 1:])
 
 
 def _clip01(t):
@@ -124,7 +117,7 @@ def _moment_dd(t0, t1, last):
     re = np.real(t0)
     owns = (re >= 0) & ((re < 1) | (last & (re <= 1)))
     frac = np.where(same, np.where(owns, 1.0, 0.0), (c1 - c0) / np.where(same, 1.0, dt))
-    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), _MQ)
+    dd = np.einsum("...p,qp->...q", _pows_dd(c0, c1, 4), MQ)
     return dd * frac[..., None]
 
 
@@ -138,7 +131,7 @@ def _clip_owned(t, last):
 
 def _moments(t, last):
     """M_q(clip t), q = 0..3 (last axis); ``last``: the pair is on the last element (:func:`_clip_owned`)."""
-    return np.einsum("...p,qp->...q", _pows(_clip_owned(t, last), 1, 4), _MQ)
+    return np.einsum("...p,qp->...q", _pows(_clip_owned(t, last), 1, 4), MQ)
 
 
 def _over(s, ds):
@@ -206,16 +199,15 @@ def _element_of(s, ds, n_el):
 
 
 def _fold(rows, n_nodes):
-    """Closed-end ghosts of theory §10.2 folded into the real nodes: rows (..., K, n_nodes + 2) over nodes -1..N+1."""
+    """Closed-end ghosts of theory §10.2 (varint.lattice.centreline.GHOST) folded into the real nodes: rows
+    (..., K, n_nodes + 2) over nodes -1..N+1 (the dense layout of the numpy reference; the compiled kernels fold each
+    stencil, k_fold_ghost)."""
     W = rows[..., 1:-1].copy()
     g0, gN = rows[..., 0], rows[..., -1]
-    W[..., 0] += 3 * g0
-    W[..., 1] -= 3 * g0
-    W[..., 2] += g0
     N = n_nodes - 1
-    W[..., N] += 3 * gN
-    W[..., N - 1] -= 3 * gN
-    W[..., N - 2] += gN
+    for c, coef in enumerate(GHOST):
+        W[..., c] += coef * g0
+        W[..., N - c] += coef * gN
     return W
 
 
@@ -455,8 +447,7 @@ class TubeEMStep:
         """Gamma_e (.., N, 3), |Gamma_e| (.., N) and the nodal stretch gamma_j (.., N+1) of theory §10.3."""
         G = strains(r, D, self.ds)[1]
         a = np.sqrt(np.sum(G * G, -1))  # sqrt of the sum of squares (not abs): complex steps pass through
-        gam = np.concatenate([a[..., :1], 0.5 * (a[..., :-1] + a[..., 1:]), a[..., -1:]], -1)
-        return G, a, gam
+        return G, a, nodal_stretch(a)
 
     def _pairs(self, s_lo, s_hi):
         """(parcel, element) pairs that parcels [s_lo_k, s_hi_{k+1}] may cover (real bounds)."""
@@ -588,7 +579,7 @@ class TubeEMStep:
             s1r, R1r = _batch_rows(s1, b, (self.M + 1,), dt), _batch_rows(R1, b, (self.N + 1,), dt)
             g1r = _batch_rows(gam1, b, (self.N + 1,), dt)
             V1 = np.empty((s1r.shape[0], self.M), dtype=dt)
-            kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, _MQ, V1)
+            kernels.pair_volumes(s1r, R1r, g1r, pk, pe, self.ds, V1)
             V1 = V1.reshape(b + (self.M,))
         else:
             V1 = self._volumes_on(s1, R1, gam1, pk, pe)
@@ -607,7 +598,7 @@ class TubeEMStep:
             B = s1r.shape[0]
             gs, gR, gg = np.empty((B, self.M + 1), dt), np.empty((B, self.N + 1), dt), np.empty((B, self.N + 1), dt)
             kernels.pair_gradients(self.s, s1r, self.R, R1r, lvl["gam0"], g1r, pk, pe, _batch_rows(c, b, (self.M,), dt),
-                                   p0["S0"], self.ds, _MQ, gs, gR, gg)
+                                   p0["S0"], self.ds, gs, gR, gg)
             return self._fluid_out(V0, V1, c, gs.reshape(b + (-1,)), gR.reshape(b + (-1,)), gg.reshape(b + (-1,)))
         cp = c[..., pk]  # per pair
         ds = self.ds
@@ -709,7 +700,7 @@ class TubeEMStep:
         str_r = _batch_rows(stress, b, (self.N, 3), dt)
         B = r1r.shape[0]
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
-        kernels.rod_discrete_gradient(self.r, self.D, r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
+        rod_discrete_gradient(self.r[None], self.D[None], r1r, D1r, self.ds, self.Jd, self.Kd, str_r, Fr, FD)
         return Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3))
 
     def _label_constraint_compiled(self, nu, r1, D1, s1, X1, fr):
@@ -722,7 +713,7 @@ class TubeEMStep:
         B = r1r.shape[0]
         c1, Fs, FX = np.empty((B, K, 3), dt), np.empty((B, K), dt), np.empty((B, K, 3), dt)
         Fr, FD = np.empty((B, n1, 3), dt), np.empty((B, n1, 3, 3), dt)
-        kernels.label_constraint(self.r, self.D, self.X, self.s, fr, r1r, D1r, s1r, X1r, nur, self.ds, _CR, c1, Fr, FD,
+        kernels.label_constraint(self.r, self.D, self.X, self.s, fr, r1r, D1r, s1r, X1r, nur, self.ds, c1, Fr, FD,
                                  Fs, FX)
         return (c1.reshape(b + (K, 3)), Fr.reshape(b + (n1, 3)), FD.reshape(b + (n1, 3, 3)), Fs.reshape(b + (K,)),
                 FX.reshape(b + (K, 3)))

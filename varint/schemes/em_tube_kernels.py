@@ -9,7 +9,7 @@ parts, as numpy's).  The numpy code stays the readable reference; tests/test_tub
 other.
 
 Notation as in tube_em: pair p covers parcel k = pk[p] on element e = pe[p]; the label coordinates on the element
-t = s/ds - e; M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau (coefficients MQ of t^1..t^4); S_q = M_q(t_hi) - M_q(t_lo);
+t = s/ds - e; M_q(t) = int_0^t (1 - tau)^(3 - q) tau^q dtau (varint.lattice.centreline.MQ); S_q = M_q(t_hi) - M_q(t_lo);
 the pair's volume ds pi sum_(ijl) R_i R_j gamma_l S_(i+j+l) over its element's two end nodes i, j, l in {0, 1}.
 """
 
@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from ..lattice.centreline import k_cr_dd, k_cr_stencil, k_cr_weights, k_fold_ghost, k_moments, k_moments_dd, k_piece_volume
 
 
 @njit(cache=True)
@@ -38,20 +40,17 @@ def _clip_owned(t, last):
 
 
 @njit(cache=True)
-def _moments(t, last, MQ, out):
-    """out[q] = M_q(clip t), q = 0..3 (tube_em._moments)."""
-    c = _clip_owned(t, last)
-    c2 = c * c
-    c3 = c2 * c
-    c4 = c3 * c
-    for q in range(4):
-        out[q] = MQ[q, 0] * c + MQ[q, 1] * c2 + MQ[q, 2] * c3 + MQ[q, 3] * c4
+def _moments(t, last, out):
+    """out[q] = M_q(clip t), q = 0..3 (tube_em._moments; varint.lattice.centreline.k_moments)."""
+    k_moments(_clip_owned(t, last), out)
 
 
 @njit(cache=True)
-def _moment_dd(t0, t1, last, MQ, out):
-    """out[q] = (M_q(clip t1) - M_q(clip t0))/(t1 - t0), cancellation-free (tube_em._moment_dd): where t0 = t1 (real
-    parts) the derivative on the element that owns the point ([0, 1), or [0, 1] on the last element)."""
+def _moment_dd(t0, t1, last, out):
+    """out[q] = (M_q(clip t1) - M_q(clip t0))/(t1 - t0), cancellation-free (tube_em._moment_dd): the polynomials'
+    divided difference between the clipped ends (varint.lattice.centreline.k_moments_dd) times the fraction of
+    [t0, t1] inside [0, 1]; where t0 = t1 (real parts) the derivative on the element that owns the point ([0, 1), or
+    [0, 1] on the last element)."""
     a, b = _clip01(t0), _clip01(t1)
     dt = t1 - t0
     if dt.real == 0.0:
@@ -59,18 +58,15 @@ def _moment_dd(t0, t1, last, MQ, out):
         frac = (1.0 + 0.0 * dt) if (re >= 0.0 and (re < 1.0 or (last and re <= 1.0))) else 0.0 * dt
     else:
         frac = (b - a) / dt
-    # (b^p - a^p)/(b - a) for p = 1..4 by dd_p = a dd_(p-1) + b^(p-1)
-    d2 = a + b
-    d3 = a * d2 + b * b
-    d4 = a * d3 + b * b * b
+    k_moments_dd(a, b, out)
     for q in range(4):
-        out[q] = (MQ[q, 0] + MQ[q, 1] * d2 + MQ[q, 2] * d3 + MQ[q, 3] * d4) * frac
+        out[q] *= frac
 
 
 @njit(cache=True)
-def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
-    """out (B, M) = parcel volumes V_k of the levels (rows of s (B, M+1), R, gam (B, N+1)): the pairs' volumes summed
-    into their parcels (tube_em's _volumes_on)."""
+def pair_volumes(s, R, gam, pk, pe, ds, out):
+    """out (B, M) = parcel volumes V_k of the levels (rows of s (B, M+1), R, gam (B, N+1)): the pairs' volumes
+    (varint.lattice.centreline.k_piece_volume) summed into their parcels (tube_em's _volumes_on)."""
     Sh = np.empty(4, dtype=out.dtype)
     Sl = np.empty(4, dtype=out.dtype)
     out[:] = 0.0
@@ -78,18 +74,15 @@ def pair_volumes(s, R, gam, pk, pe, ds, MQ, out):
         for p in range(pk.size):
             k, e = pk[p], pe[p]
             last = e == R.shape[1] - 2
-            _moments(s[b, k + 1] / ds - e, last, MQ, Sh)
-            _moments(s[b, k] / ds - e, last, MQ, Sl)
-            acc = 0.0 * Sh[0]
-            for i in range(2):
-                for j in range(2):
-                    for l in range(2):
-                        acc += R[b, e + i] * R[b, e + j] * gam[b, e + l] * (Sh[i + j + l] - Sl[i + j + l])
-            out[b, k] += ds * np.pi * acc
+            _moments(s[b, k + 1] / ds - e, last, Sh)
+            _moments(s[b, k] / ds - e, last, Sl)
+            for q in range(4):
+                Sh[q] -= Sl[q]
+            out[b, k] += k_piece_volume(R[b, e], R[b, e + 1], gam[b, e], gam[b, e + 1], Sh, ds)
 
 
 @njit(cache=True)
-def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
+def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, gs, gR, gg):
     """The discrete gradient of sum_k c_k V_k between the level (s0, R0, g0: real, 1-D; S0 (npairs, 4) its pairs'
     S_q, as tube_em's level cache keeps them) and each row of (s1, R1, g1) with its coefficients c (B, M), per pair
     and scattered: gs (B, M+1) on all labels, gR (B, N+1) on the radii,
@@ -108,12 +101,12 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
             last = e == N - 1
             tl0, th0 = s0[k] / ds - e, s0[k + 1] / ds - e
             tl1, th1 = s1[b, k] / ds - e, s1[b, k + 1] / ds - e
-            _moments(th1, last, MQ, S1h)
-            _moments(tl1, last, MQ, S1l)
+            _moments(th1, last, S1h)
+            _moments(tl1, last, S1l)
             for q in range(4):
                 Sb[q] = 0.5 * (S0[p, q] + (S1h[q] - S1l[q]))
-            _moment_dd(th0 + 0.0 * th1, th1, last, MQ, ddh)
-            _moment_dd(tl0 + 0.0 * tl1, tl1, last, MQ, ddl)
+            _moment_dd(th0 + 0.0 * th1, th1, last, ddh)
+            _moment_dd(tl0 + 0.0 * tl1, tl1, last, ddl)
             g_hi = 0.0 * Sb[0]
             g_lo = 0.0 * Sb[0]
             gR_p[:] = 0.0
@@ -143,9 +136,8 @@ def pair_gradients(s0, s1, R0, R1, g0, g1, pk, pe, c, S0, ds, MQ, gs, gR, gg):
 
 
 # -- the labels' constraint c_k = D_e^T (X_k - X(s_k)) and its discrete derivative's forces (tube_em.label_constraint)
-# The Catmull-Rom weights of a label on element e sit on the padded nodes e..e+3 (nodes e-1..e+2); the closed-end
-# ghosts (padded 0 and N+2) fold into the real nodes as 3 x_0 - 3 x_1 + x_2 and 3 x_N - 3 x_(N-1) + x_(N-2)
-# (docs/theory.md §10.2, tube_em._fold).
+# The Catmull-Rom weights of a label on element e (nodes e-1..e+2, the closed ends' ghosts folded into the real nodes:
+# varint.lattice.centreline's k_cr_weights, k_cr_stencil, k_fold_ghost; docs/theory.md §10.2).
 
 
 @njit(cache=True)
@@ -154,87 +146,47 @@ def _element(s_re, ds, n_el):
     return 0 if e < 0 else (n_el - 1 if e > n_el - 1 else e)
 
 
-@njit(cache=True)
-def _cr(t, CR, w):
-    """w[i] = the Catmull-Rom weight of padded node e + i at local coordinate t."""
-    t2 = t * t
-    t3 = t2 * t
+@njit(cache=True, inline="always")
+def _add_piece(row, e, n_nodes, coef, w, nodes):
+    """row[node] += coef w[i] over element e's stencil (w: weights of nodes e-1..e+2), its ghost folded."""
+    k_fold_ghost(k_cr_stencil(e, n_nodes, False, nodes), w)
     for i in range(4):
-        w[i] = CR[i, 0] + CR[i, 1] * t + CR[i, 2] * t2 + CR[i, 3] * t3
+        row[nodes[i]] += coef * w[i]
 
 
 @njit(cache=True)
-def _cr_dd(a, b, CR, w):
-    """w[i] = (N_i(b) - N_i(a))/(b - a) in local coordinates, cancellation-free (tube_em._cr_dd)."""
-    d2 = a + b
-    d3 = a * a + a * b + b * b
-    for i in range(4):
-        w[i] = CR[i, 1] + CR[i, 2] * d2 + CR[i, 3] * d3
-
-
-@njit(cache=True)
-def _gather(x, q, N, a):
-    """Component a of the padded node q's position (a ghost folded)."""
-    if q == 0:
-        return 3.0 * x[0, a] - 3.0 * x[1, a] + x[2, a]
-    if q == N + 2:
-        return 3.0 * x[N, a] - 3.0 * x[N - 1, a] + x[N - 2, a]
-    return x[q - 1, a]
-
-
-@njit(cache=True)
-def _scatter(F, q, N, coef, vec):
-    """F[node] += coef * vec for the padded node q (a ghost's share to the nodes it folds into)."""
-    for a in range(3):
-        v = coef * vec[a]
-        if q == 0:
-            F[0, a] += 3.0 * v
-            F[1, a] -= 3.0 * v
-            F[2, a] += v
-        elif q == N + 2:
-            F[N, a] += 3.0 * v
-            F[N - 1, a] -= 3.0 * v
-            F[N - 2, a] += v
-        else:
-            F[q - 1, a] += v
-
-
-@njit(cache=True)
-def _dd_row(s0, s1, ds, n_el, CR, row, w):
-    """The label's divided differences (N_i(s1) - N_i(s0))/(s1 - s0) on the padded nodes, into ``row`` (zero on
-    entry); returns the range (lo, hi) written.  Per element crossed, the polynomial divided difference between the
-    piece's ends times its share of the step (tube_em.label_weights_dd)."""
+def _dd_row(s0, s1, ds, n_el, row, w, nodes):
+    """The label's divided differences (N_i(s1) - N_i(s0))/(s1 - s0) on the nodes, into ``row`` (zero on entry);
+    returns the range (lo, hi) of nodes written.  Per element crossed, the polynomial divided difference between the
+    piece's ends (varint.lattice.centreline.k_cr_dd) times its share of the step (tube_em.label_weights_dd)."""
+    n_nodes = n_el + 1
     e0 = _element(s0, ds, n_el)
     e1 = _element(s1.real, ds, n_el)
     a = s0 / ds - e0
     if e0 == e1:
-        _cr_dd(a + 0.0 * s1, s1 / ds - e0, CR, w)
-        for i in range(4):
-            row[e0 + i] += w[i] / ds
-        return e0, e0 + 3
+        k_cr_dd(a + 0.0 * s1, s1 / ds - e0, w)
+        _add_piece(row, e0, n_nodes, 1.0 / ds, w, nodes)
+        return max(e0 - 1, 0), min(e0 + 2, n_el)
     up = e1 > e0
     dsv = s1 - s0
     b = 1.0 if up else 0.0
-    _cr_dd(a + 0.0 * s1, b + 0.0 * s1, CR, w)
-    for i in range(4):
-        row[e0 + i] += w[i] * ((b - a) / dsv)
+    k_cr_dd(a + 0.0 * s1, b + 0.0 * s1, w)
+    _add_piece(row, e0, n_nodes, (b - a) / dsv, w, nodes)
     a = 0.0 if up else 1.0
     b1 = s1 / ds - e1
-    _cr_dd(a + 0.0 * s1, b1, CR, w)
-    for i in range(4):
-        row[e1 + i] += w[i] * ((b1 - a) / dsv)
+    k_cr_dd(a + 0.0 * s1, b1, w)
+    _add_piece(row, e1, n_nodes, (b1 - a) / dsv, w, nodes)
     sign = 1.0 if up else -1.0
     lo_e, hi_e = (e0, e1) if up else (e1, e0)
     for e in range(lo_e + 1, hi_e):  # whole elements crossed in one step (rare)
         lo, hi = (0.0, 1.0) if up else (1.0, 0.0)
-        _cr_dd(lo + 0.0 * s1, hi + 0.0 * s1, CR, w)
-        for i in range(4):
-            row[e + i] += w[i] * sign / dsv
-    return lo_e, hi_e + 3
+        k_cr_dd(lo + 0.0 * s1, hi + 0.0 * s1, w)
+        _add_piece(row, e, n_nodes, sign / dsv, w, nodes)
+    return max(lo_e - 1, 0), min(hi_e + 2, n_el)
 
 
 @njit(cache=True)
-def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD, Fs, FX):
+def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, c1, Fr, FD, Fs, FX):
     """The labels' constraint at the new levels and its discrete derivative's forces from the multipliers nu, for each
     row b of the batch (r1 (B, N+1, 3), D1 (B, N+1, 3, 3), s1 (B, M+1), X1, nu (B, M-1, 3)); the level (r0, D0, X0,
     s0) real, fr the labels' frame nodes.  Writes c1 (B, M-1, 3), Fr (B, N+1, 3), FD (B, N+1, 3, 3), Fs (B, M-1),
@@ -243,7 +195,8 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
     K = X0.shape[0]
     dt = c1.dtype
     w0, w1, w = np.empty(4), np.empty(4, dtype=dt), np.empty(4, dtype=dt)
-    row = np.zeros(N + 3, dtype=dt)
+    n0, n1, nodes = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4, np.int64)
+    row = np.zeros(N + 1, dtype=dt)
     x1, xb, Dnu, y0, y1, nu_b = (np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt),
                                  np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt))
     Fr[:] = 0.0
@@ -254,21 +207,20 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
             sk0, sk1 = s0[k + 1], s1[b, k + 1]
             e0 = _element(sk0, ds, N)
             e1 = _element(sk1.real, ds, N)
-            _cr(sk0 / ds - e0, CR, w0)
-            _cr(sk1 / ds - e1, CR, w1)
+            k_cr_weights(sk0 / ds - e0, w0)
+            k_fold_ghost(k_cr_stencil(e0, N + 1, False, n0), w0)
+            k_cr_weights(sk1 / ds - e1, w1)
+            k_fold_ghost(k_cr_stencil(e1, N + 1, False, n1), w1)
             # x1 = X1 - X(s1) at level 1; xb = Xbar - Wbar rbar (Wbar, rbar the levels' means)
             for a in range(3):
                 X1a = X1[b, k, a]
                 g1 = 0.0 * X1a
                 gb = 0.0 * X1a
                 for i in range(4):
-                    p1 = _gather(r1[b], e1 + i, N, a)
-                    p0 = _gather(r0, e1 + i, N, a)
+                    p1 = r1[b, n1[i], a]
                     g1 += w1[i] * p1
-                    gb += 0.25 * w1[i] * (p0 + p1)
-                    q0 = _gather(r0, e0 + i, N, a)
-                    q1 = _gather(r1[b], e0 + i, N, a)
-                    gb += 0.25 * w0[i] * (q0 + q1)
+                    gb += 0.25 * w1[i] * (r0[n1[i], a] + p1)
+                    gb += 0.25 * w0[i] * (r0[n0[i], a] + r1[b, n0[i], a])
                 x1[a] = X1a - g1
                 xb[a] = 0.5 * (X0[k, a] + X1a) - gb
             for a in range(3):
@@ -284,19 +236,20 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
                 Dnu[a] = acc
                 FX[b, k, a] = acc
             for i in range(4):
-                _scatter(Fr[b], e0 + i, N, -0.5 * w0[i], Dnu)
-                _scatter(Fr[b], e1 + i, N, -0.5 * w1[i], Dnu)
+                for a in range(3):
+                    Fr[b, n0[i], a] += -0.5 * w0[i] * Dnu[a]
+                    Fr[b, n1[i], a] += -0.5 * w1[i] * Dnu[a]
             for a in range(3):
                 for i in range(3):
                     FD[b, j, a, i] += xb[a] * nu_b[i]
             # F_s = -(1/2) sum_l (DD r_l) . (D_e^l nu), l = 0, 1
-            lo, hi = _dd_row(sk0, sk1, ds, N, CR, row, w)
+            lo, hi = _dd_row(sk0, sk1, ds, N, row, w, nodes)
             for a in range(3):
                 acc0 = 0.0 * x1[0]
                 acc1 = 0.0 * x1[0]
                 for q in range(lo, hi + 1):
-                    acc0 += row[q] * _gather(r0, q, N, a)
-                    acc1 += row[q] * _gather(r1[b], q, N, a)
+                    acc0 += row[q] * r0[q, a]
+                    acc1 += row[q] * r1[b, q, a]
                 y0[a] = acc0
                 y1[a] = acc1
             for q in range(lo, hi + 1):
@@ -306,85 +259,3 @@ def label_constraint(r0, D0, X0, s0, fr, r1, D1, s1, X1, nu, ds, CR, c1, Fr, FD,
                 for i in range(3):
                     acc += y0[a] * D0[j, a, i] * nu_b[i] + y1[a] * D1[b, j, a, i] * nu_b[i]
             Fs[b, k] = -0.5 * acc
-
-
-# -- the rod's discrete gradient with a stress added to n (rod_em.discrete_gradient, docs/theory.md §12a) ------------
-
-
-@njit(cache=True)
-def _element_strains(r, D, e, ds, Ga, a):
-    """Gamma (Ga) and the axial vector a of R = D_e^T D_(e+1) of element e at one level; returns c = 1 + tr R."""
-    for i in range(3):
-        acc = 0.0 * r[0, 0]
-        for j in range(3):
-            acc += 0.5 * (D[e, j, i] + D[e + 1, j, i]) * (r[e + 1, j] - r[e, j])
-        Ga[i] = acc / ds
-    R = np.empty((3, 3), dtype=Ga.dtype)
-    for i in range(3):
-        for k in range(3):
-            acc = 0.0 * r[0, 0]
-            for j in range(3):
-                acc += D[e, j, i] * D[e + 1, j, k]
-            R[i, k] = acc
-    a[0] = R[2, 1] - R[1, 2]
-    a[1] = R[0, 2] - R[2, 0]
-    a[2] = R[1, 0] - R[0, 1]
-    return 1.0 + R[0, 0] + R[1, 1] + R[2, 2]
-
-
-@njit(cache=True)
-def rod_discrete_gradient(r0, D0, r1, D1, ds, Jd, Kd, stress, Fr, FD):
-    """grad_d U of the rod between the level (r0, D0: real) and each row b of (r1 (B, N+1, 3), D1 (B, N+1, 3, 3)),
-    with stress (B, N, 3) added to the mean-strain stress n: Fr (B, N+1, 3), FD (B, N+1, 3, 3) (rod_em.discrete_gradient)."""
-    N = r0.shape[0] - 1
-    dt = Fr.dtype
-    Ga0, a0, Ga1, a1 = np.empty(3), np.empty(3), np.empty(3, dtype=dt), np.empty(3, dtype=dt)
-    n, m, fn, drb, alpha = (np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt), np.empty(3, dtype=dt),
-                            np.empty(3, dtype=dt))
-    Phi = np.empty((3, 3), dtype=dt)
-    Dbar = np.empty((N + 1, 3, 3), dtype=dt)
-    Fr[:] = 0.0
-    FD[:] = 0.0
-    for b in range(r1.shape[0]):
-        rb1, Db1 = r1[b], D1[b]
-        for j in range(N + 1):
-            for p in range(3):
-                for q in range(3):
-                    Dbar[j, p, q] = 0.5 * (D0[j, p, q] + Db1[j, p, q])
-        for e in range(N):
-            c0 = _element_strains(r0, D0, e, ds, Ga0, a0)
-            c1 = _element_strains(rb1, Db1, e, ds, Ga1, a1)
-            cc = c0 * c1
-            beta = 0.0 * c1
-            for i in range(3):
-                n[i] = Kd[i] * (0.5 * (Ga0[i] + Ga1[i]) - (1.0 if i == 0 else 0.0)) + stress[b, e, i]
-                # Omega = 2 a/(c ds) at both levels; m = J times their mean
-                m[i] = Jd[i] * 0.5 * (2.0 * a0[i] / (c0 * ds) + 2.0 * a1[i] / (c1 * ds))
-                drb[i] = 0.5 * (r0[e + 1, i] + rb1[e + 1, i]) - 0.5 * (r0[e, i] + rb1[e, i])
-            for i in range(3):
-                acc = 0.0 * c1
-                for j in range(3):
-                    acc += 0.5 * (Dbar[e, i, j] + Dbar[e + 1, i, j]) * n[j]
-                fn[i] = acc
-                Fr[b, e + 1, i] += acc
-                Fr[b, e, i] -= acc
-                alpha[i] = (c0 + c1) * m[i] / cc
-                beta += -(a0[i] + a1[i]) * m[i] / cc
-            for i in range(3):
-                for j in range(3):
-                    g = 0.5 * drb[i] * n[j]
-                    FD[b, e, i, j] += g
-                    FD[b, e + 1, i, j] += g
-            # Phi = hat(alpha) + beta I (the derivative of alpha . a + beta c in R = D_a^T D_b)
-            Phi[0, 0], Phi[0, 1], Phi[0, 2] = beta, -alpha[2], alpha[1]
-            Phi[1, 0], Phi[1, 1], Phi[1, 2] = alpha[2], beta, -alpha[0]
-            Phi[2, 0], Phi[2, 1], Phi[2, 2] = -alpha[1], alpha[0], beta
-            for i in range(3):
-                for j in range(3):
-                    acc_a = 0.0 * c1
-                    acc_b = 0.0 * c1
-                    for k in range(3):
-                        acc_a += Dbar[e + 1, i, k] * Phi[j, k]
-                        acc_b += Dbar[e, i, k] * Phi[k, j]
-                    FD[b, e, i, j] += acc_a
-                    FD[b, e + 1, i, j] += acc_b

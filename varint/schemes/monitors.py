@@ -12,9 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..lattice.centreline import stretched_volumes
 from ..lattice.lie import cay
-from ..terms.coupled import element_strains, stretch_map
+from ..terms.coupled import element_strains, kinetic_metric_of, stretched_volumes_of
 from ..terms.rod import unpack_level
 from ..terms.rod_constraint import constraint_jacobian, element_strain_residual
 
@@ -148,17 +147,10 @@ class LevelMonitors:
         Lam, r, origin = unpack_level(st.q[m.rod_q], m.N)
         return cfg, Lam, r, origin
 
-    @property
-    def _n_kernel_nodes(self):
-        rod = self.model.rod
-        return rod.N if rod.periodic else rod.N + 1
-
     def _coupled_volumes(self, cfg, Lam, r):
         """The parcels' stretched volumes at one level (docs/theory.md §10.3)."""
         t = self.model.tube
-        G, _, _ = element_strains(Lam, r, t.ds)
-        gamma = stretch_map(self._n_kernel_nodes, t.periodic) @ np.linalg.norm(G, axis=1)
-        return stretched_volumes(cfg.s, cfg.R, gamma, t.ds, t.periodic)
+        return stretched_volumes_of(cfg.s, cfg.R, element_strains(Lam, r, t.ds)[0], t.ds, t.periodic)
 
     def _coupled_monitors(self):
         """Energy, momenta, mass and entropy of the coupled tube (docs/theory.md §10.5, §10.6).
@@ -228,8 +220,7 @@ class LevelMonitors:
             Lp, rp, op = unpack_level(st.q_prev[m.rod_q], N)
             G0, _, _ = element_strains(Lp, rp + op - origin, t.ds)
             G1, _, _ = element_strains(Lam, r, t.ds)
-            gbar = stretch_map(self._n_kernel_nodes, t.periodic) @ np.linalg.norm(0.5 * (G0 + G1), axis=1)
-            Vbar = stretched_volumes(0.5 * (s0 + s1), 0.5 * (R0 + R1), gbar, t.ds, t.periodic)
+            Vbar = stretched_volumes_of(0.5 * (s0 + s1), 0.5 * (R0 + R1), 0.5 * (G0 + G1), t.ds, t.periodic)
             out["mass"] = float(np.sum(rod.node_mass) + np.sum(t.m / t.V0 * Vbar))
             out["constraint_residual"] = float(np.max(np.abs(Vbar / t.V0 - 1.0)))
         else:
@@ -277,21 +268,12 @@ class LevelMonitors:
             wmu[:-1] += 0.5 * rod.ds * mu
             wmu[1:] += 0.5 * rod.ds * mu
         nodes, Nw, _, _, dX, _ = m.centreline(cfg.s, r)
-        k = np.repeat(np.arange(M + 1), 4)
         # variables: per node [rdot (3), body omega (3)], then the labels' sdot; Xdot_k = sum_a N_a rdot + X'_k sdot_k
-        rr = (3 * k[:, None] + np.arange(3)).ravel()
-        rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
-        rv = np.repeat(Nw.ravel(), 3)
-        lr = (3 * np.arange(M + 1)[:, None] + np.arange(3)).ravel()
-        lc = np.repeat(6 * n1 + np.arange(M + 1), 3)
-        lv = dX.ravel()
         nvar = 6 * n1 + M + 1
-        Jx = sp.csr_matrix((np.concatenate([rv, lv]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
-                           shape=(3 * (M + 1), nvar))
-        mbar = np.repeat(t.label_mass_all, 3)
+        Mf, Jx = kinetic_metric_of(nodes, Nw, dX, t.label_mass_all, n1)
         rod_diag = np.concatenate([np.repeat((rod.section.rhoA * wmu)[:, None], 3, axis=1),
                                    rod.section.inertia[None, :] * wmu[:, None]], axis=1).ravel()
-        Mt = (Jx.T @ sp.diags(mbar) @ Jx).tocsr() + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
+        Mt = Mf + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
         labels = np.arange(M + 1)[m.free_labels]
         active = np.concatenate([np.nonzero(rod.mask.ravel())[0], 6 * n1 + labels])
         pr = st.p[m.rod_p].reshape(2, n1, 3).transpose(1, 0, 2).reshape(-1)

@@ -328,22 +328,17 @@ class OpenEndsStepping:
         return cfg, Lam, r, origin
 
     def _oc_metric(self, s, r):
-        """(Jx, rod diagonal, X, X') of labels ``s`` (every label, the piston first) on the extended centreline:
-        Xdot = Jx vel with vel = [per node (rdot, omega) | sdot per label] (docs/theory.md §10.5)."""
+        """(fluid metric, Jx, rod diagonal, X, X') of labels ``s`` (every label, the piston first) on the extended
+        centreline: Xdot = Jx vel with vel = [per node (rdot, omega) | sdot per label] (docs/theory.md §10.5;
+        varint.terms.coupled.kinetic_metric_of)."""
+        from ..terms.coupled import kinetic_metric_of
+
         m = self.model
         rod = m.rod
-        n1, M = rod.N + 1, len(s) - 1
         nodes, Nw, _, X, dX, _ = m.centreline(s, r)
-        k = np.repeat(np.arange(M + 1), nodes.shape[1])
-        rr = (3 * k[:, None] + np.arange(3)).ravel()
-        rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
-        rv = np.repeat(Nw.ravel(), 3)
-        lr = (3 * np.arange(M + 1)[:, None] + np.arange(3)).ravel()
-        lc = np.repeat(6 * n1 + np.arange(M + 1), 3)
-        Jx = sp.csr_matrix((np.concatenate([rv, dX.ravel()]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
-                           shape=(3 * (M + 1), 6 * n1 + M + 1))
+        Mf, Jx = kinetic_metric_of(nodes, Nw, dX, m.tube.label_mass_all, rod.N + 1)
         rod_diag = np.concatenate([np.repeat(rod.node_mass[:, None], 3, axis=1), rod.node_inertia], axis=1).ravel()
-        return Jx, rod_diag, X, dX
+        return Mf, Jx, rod_diag, X, dX
 
     def _oc_velocities(self, st, cfg, Lam, r):
         """Level velocities from the stored momenta in the kinetic metric (held components at rest, the piston at
@@ -353,9 +348,8 @@ class OpenEndsStepping:
         m = self.model
         t, rod = m.tube, m.rod
         n1, M, nf = rod.N + 1, t.M, t.n_fixed
-        Jx, rod_diag, X, dX = self._oc_metric(cfg.s, r)
-        Mt = (Jx.T @ sp.diags(np.repeat(t.label_mass_all, 3)) @ Jx).tocsr() \
-            + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
+        Mf, Jx, rod_diag, X, dX = self._oc_metric(cfg.s, r)
+        Mt = Mf + sp.diags(np.concatenate([rod_diag, np.zeros(M + 1)]))
         known = np.zeros(6 * n1 + M + 1)
         if nf:
             known[6 * n1] = t.U_in

@@ -26,7 +26,7 @@ gradient), but
   past ``newton_tol`` while they still contract);
 * the momenta are kept to their own round-off (docs/theory.md §9, "Momenta to round-off"): each element is evaluated
   in coordinates centred on its node a at level n, with the velocities from the increments Lambda_n b rather than
-  from differences of rounded positions (``_k_levels_gradient``), and after Newton a free rod's solution is corrected
+  from differences of rounded positions (``varint.terms.rod.k_rod_gradient``), and after Newton a free rod's solution is corrected
   in the six rigid directions so that the step's momentum balances, in closed form, vanish (``_k_rigid_polish``).
 
 What it covers: a rod without ``[fluid]``/``[wall]`` and without ``rod.constraint`` (the shearable rod), 2D and 3D,
@@ -56,7 +56,9 @@ from numba import njit
 from ..errors import SolverError
 from .limits import chart_limit_error
 from .newton import newton_damped
-from ..terms.rod import (EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_body_rows, k_cay, k_chart_column, k_element, k_measure, unpack_level)
+from ..lattice.lie import k_cay
+from ..terms.forces import k_tip_torque
+from ..terms.rod import EPS_CS, ORIGIN_GRID, POLISH_ROD, XI_MAX, k_measure, k_rod_gradient, k_step_block, unpack_level
 
 __all__ = ["FastRodStep", "supports"]
 
@@ -183,53 +185,18 @@ def _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr):
 
 
 @njit(cache=True, error_model="numpy")
-def _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev, D, M, V, e1, e2):
-    """D = D1 (lev 0) or D2 (lev 1) of L_d: the element gradients summed, and the tip force's node piece
-    (varint.terms.rod._k_gradient with preallocated scratch).  Returns False if a Cayley chart is singular.
-
-    Each element is evaluated in coordinates centred on its node a at level n: r_a^n = 0, r_b^n = r_b^n - r_a^n,
-    r_a^{n+1} = dr_a, r_b^{n+1} = (r_b^n - r_a^n) + dr_b.  L_d's gradient depends on positions only through
-    differences (the gravity and tip-force pieces are constant), so this is the same function; but the element's
-    velocities r^{n+1} - r^n are then dr_a exactly and dr_b to eps ds (not eps |r|, the rounding of the absolute
-    positions, which set the floor of the step's momentum balance; docs/theory.md §9, "Momenta to round-off").
-    ``V`` (20, 3): the element kernel's scratch (rows 0-15) and the element's four positions (rows 16-19)."""
-    N = Lam_n.shape[0] - 1
-    for j in range(N + 1):
-        for i in range(6):
-            D[j, i] = 0.0
-    ra0, rb0, ra1, rb1 = V[16], V[17], V[18], V[19]
-    for e in range(N):
-        for i in range(3):
-            ra0[i] = 0.0
-            rb0[i] = r_n[e + 1, i] - r_n[e, i]
-            ra1[i] = dr[e, i]
-            rb1[i] = rb0[i] + dr[e + 1, i]
-        # k_cay / _k_cay_inv divide by 4 + |w|^2 and 1 + tr: a pi rotation raises ZeroDivisionError in numba
-        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], ra0, rb0,
-                   xi[e], xi[e + 1], ra1, rb1, lev, lev + 1, e1, e2, M, V)
-        src = e1 if lev == 0 else e2
-        for i in range(6):
-            D[e, i] += src[i]
-            D[e + 1, i] += src[6 + i]
-    for i in range(3):
-        D[N, i] += 0.5 * h * force[i]
-    return True
-
-
-@njit(cache=True, error_model="numpy")
 def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, Lam_n, r_n, pin, z, idx, bpos,
                 xi, r_1, dr, D, M, V, e1, e2, out):
     """The step residual (Step.residual) at z, written into out in band order (out[bpos[k]] = R_k).
     Returns False when it is not finite."""
     N = Lam_n.shape[0] - 1
     _k_chart(Lam_n, r_n, z, idx, periodic, xi, r_1, dr)
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, D, M, V, e1, e2)
+    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 0, 1, D, D, M, V, e1, e2, False)
     for j in range(N + 1):
         for i in range(6):
             D[j, i] += pin[j, i]
     # f^- of the dead tip torque: (h/2) Lambda_N^n T T in the tip's body frame (varint.terms.forces.TipTorque)
-    for i in range(3):
-        D[N, 3 + i] += 0.5 * h * (Lam_n[N, 0, i] * torque[0] + Lam_n[N, 1, i] * torque[1] + Lam_n[N, 2, i] * torque[2])
+    k_tip_torque(0.5 * h, Lam_n[N], torque, D[N, 3:])
     # the translational rows in the level-n body frames
     for j in range(N + 1):
         a0 = Lam_n[j, 0, 0] * D[j, 0] + Lam_n[j, 1, 0] * D[j, 1] + Lam_n[j, 2, 0] * D[j, 2]
@@ -256,41 +223,29 @@ def _k_residual(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic,
 @njit(cache=True, error_model="numpy")
 def _k_band_jacobian(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, cmask, idx, bpos, kl, ku, cs, col, ab):
     """The step's exact Jacobian (Step.jacobian) in band storage ab (LAPACK layout by columns, see _k_band_lu), band
-    order.  Column k of element e's block: the complex step of the analytic element gradient D1 (``k_element``) in the
-    chart u = (b_a, xi_a, b_b, xi_b) (``k_chart_column``), translational rows in the level-n body frames
-    (``k_body_rows``): the loop of varint.terms.rod._k_step_blocks, assembled in place.  ``cs``: complex scratch
-    (varint.terms.rod._element_scratch layout, then ra, rb, xa, xb, qa, qb).  Returns False if not finite."""
+    order: each element's block (``varint.terms.rod.k_step_block``: the complex step of the analytic element gradient
+    in the chart u = (b_a, xi_a, b_b, xi_b), translational rows in the level-n body frames; the stepper's own blocks),
+    assembled in place.  ``cs``: complex scratch (varint.terms.rod._element_scratch layout, then ra, rb, xa, xb, qa,
+    qb); ``col`` (>= 12) real scratch.  Returns False if not finite."""
     N = Lam_n.shape[0] - 1
-    M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
-    ra, rb, xa, xb, qa, qb = cs[6], cs[7], cs[8], cs[9], cs[10], cs[11]
     kv = kl + ku
     ab[:, :] = 0.0
-    inv = 1.0 / EPS_CS
+    blk = np.empty((12, 12))
     ok = True
     for e in range(N):
-        for i in range(3):
-            ra[i] = r_n[e, i]
-            rb[i] = r_n[e + 1, i]
-            for m in range(3):
-                La[i, m] = Lam_n[e, i, m]
-                Lb[i, m] = Lam_n[e + 1, i, m]
+        k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, cmask, EPS_CS, cs, col[:12], blk)
         for k in range(12):
             if not cmask[e + k // 6, k % 6]:
                 continue
             kc = idx[e + k // 6, k % 6]
             if kc < 0:
                 continue
-            k_chart_column(Lam_n, xi, r_1, e, k, EPS_CS, xa, xb, qa, qb)
-            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
-            for i in range(12):
-                col[12 + i] = e1[i].imag * inv
-            k_body_rows(Lam_n, e, col[12:], col[:12])
             pc = bpos[kc]
             for a in range(12):
                 ka = idx[e + a // 6, a % 6]
                 if ka < 0:
                     continue
-                v = col[a]
+                v = blk[a, k]
                 if not np.isfinite(v):
                     ok = False
                 ab[pc, kv + bpos[ka] - pc] += v
@@ -569,7 +524,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
         if t > turn[0]:
             turn[0] = t
             turn[1] = j
-    _k_levels_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, D, M, V, e1, e2)
+    k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, 1, 2, D, D, M, V, e1, e2, False)
     # the new frames: Lambda_n cay(xi), then one polar Newton step L (3 I - L^T L) / 2 (varint.terms.rod.reorthonormalize)
     L1 = q1[3 * n1:12 * n1].reshape(n1, 3, 3)
     T = M[4]  # (element scratch, free here)
@@ -587,8 +542,7 @@ def _k_finish(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, periodic, f
             for b in range(3):
                 L1[j, a, b] = 0.5 * (T[a, 0] * C[0, b] + T[a, 1] * C[1, b] + T[a, 2] * C[2, b])
     # f^+ of the tip torque with the new (re-orthonormalised) tip frame
-    for i in range(3):
-        D[N, 3 + i] += 0.5 * h * (L1[N, 0, i] * torque[0] + L1[N, 1, i] * torque[1] + L1[N, 2, i] * torque[2])
+    k_tip_torque(0.5 * h, L1[N], torque, D[N, 3:])
     if periodic:
         for i in range(6):
             D[0, i] += D[N, i]

@@ -65,12 +65,14 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..lattice.centreline import centreline_and_weights, stretched_volume_derivatives
+from ..lattice.centreline import (centreline_and_weights, k_stretch_weight, k_whole_element, nodal_stretch,
+                                  stretched_volume_derivatives, stretched_volumes)
 from ..lattice.lie import cay_inv, dcay, hat
+from .rod import level_strains
 
 __all__ = ["fluid_kinetic_step", "LOCAL_SIZE", "FluidPotential", "LevelGradient", "StepTerm", "fluid_potential_step",
            "fluid_kinetic_chart", "newton_offsets", "stretch_map", "element_strains", "fluid_potential_static",
-           "fluid_kinetic_metric"]
+           "fluid_kinetic_metric", "stretched_volumes_of", "label_velocity_map", "kinetic_metric_of"]
 
 #: local unknowns of one label's kinetic contribution: s^n, r^n (4 nodes x 3), s^{n+1}, r^{n+1} (4 x 3)
 LOCAL_SIZE = 26
@@ -261,27 +263,29 @@ def _topology(n_nodes, periodic, ds, period):
 
 def element_strains(Lam, r, ds, periodic=False, period=None):
     """Gamma_e = (Lambda_a + Lambda_b)^T (r_b - r_a) / (2 ds) of every element (§9, §10.1), with the
-    body-frame chords p_a = Lambda_a^T (r_b - r_a), p_b = Lambda_b^T (r_b - r_a): ``(Gamma, p_a, p_b)``."""
-    Lam = np.asarray(Lam, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    ia, ib, shift = _topology(len(r), periodic, ds, period)
-    dr = r[ib] - r[ia] + shift
-    pa = np.einsum("eki,ek->ei", Lam[ia], dr)
-    pb = np.einsum("eki,ek->ei", Lam[ib], dr)
-    return 0.5 * (pa + pb) / ds, pa, pb
+    body-frame chords p_a = Lambda_a^T (r_b - r_a), p_b = Lambda_b^T (r_b - r_a): ``(Gamma, p_a, p_b)``
+    (varint.terms.rod.level_strains)."""
+    st = level_strains(np.asarray(Lam, dtype=np.float64), np.asarray(r, dtype=np.float64), ds, periodic, period)
+    return st.Gamma, st.pa, st.pb
 
 
 @lru_cache(maxsize=16)
 def stretch_map(n_nodes, periodic=False):
     """The linear map T (nR x n_el, sparse) with gamma = T G: the nodal stretch of §10.3 (mean of the
-    adjacent elements; a closed end node takes its only element's).  Cached: do not modify it."""
+    adjacent elements; a closed end node takes its only element's): the entries varint.lattice.centreline.k_stretch_weight
+    of the compiled kernels.  Cached: do not modify it."""
     n_el = n_nodes if periodic else n_nodes - 1
     e = np.arange(n_el)
     rows = np.concatenate([e, (e + 1) % n_nodes])
-    vals = np.full(2 * n_el, 0.5)
-    if not periodic:
-        vals[0] = vals[-1] = 1.0  # node 0 (from element 0) and node N (from element N-1)
+    vals = np.array([k_stretch_weight(int(j), n_nodes, periodic) for j in rows])
     return sp.csr_matrix((vals, (rows, np.concatenate([e, e]))), shape=(n_nodes, n_el))
+
+
+def stretched_volumes_of(s, R, Gamma, ds, periodic=False):
+    """The parcels' stretched volumes (§10.3) at labels s, nodal radii R and element strains Gamma (n_el, 3) (a level's,
+    or the strain midpoint of a step): the nodal stretch of |Gamma_e| (varint.lattice.centreline.nodal_stretch) into
+    varint.lattice.centreline.stretched_volumes."""
+    return stretched_volumes(s, R, nodal_stretch(np.linalg.norm(Gamma, axis=1), periodic), ds, periodic)
 
 
 def _strain_jacobian(Lsum, pa, pb, ds):
@@ -348,18 +352,15 @@ def _potential_in_y(fp, sbar, Rbar, gamma, mu, want_hessian):
         # Vol = sum_e ds pi/12 [gamma_a (3a^2 + 2ab + b^2) + gamma_b (a^2 + 2ab + 3b^2)]: G_e(1) of
         # varint/lattice/centreline.py, the whole element (§10.3)
         ia, ib, _ = _topology(nR, fp.periodic, fp.ds, None)
-        a, b, ga, gb = Rbar[ia], Rbar[ib], gamma[ia], gamma[ib]
+        w = k_whole_element(Rbar[ia], Rbar[ib], gamma[ia], gamma[ib])
         c = fp.p_ext * fp.ds * np.pi / 12.0
-        U += float(np.sum(c * (ga * (3 * a * a + 2 * a * b + b * b) + gb * (a * a + 2 * a * b + 3 * b * b))))
+        U += float(np.sum(c * w[0]))
         iR_a, iR_b, ig_a, ig_b = o_R + ia, o_R + ib, o_g + ia, o_g + ib
-        grad += _scatter(np.concatenate([iR_a, iR_b, ig_a, ig_b]),
-                         np.concatenate([c * (ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b)),
-                                         c * (ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b)),
-                                         c * (3 * a * a + 2 * a * b + b * b), c * (a * a + 2 * a * b + 3 * b * b)]), ny)
+        grad += _scatter(np.concatenate([iR_a, iR_b, ig_a, ig_b]), np.concatenate([c * w[1], c * w[2], c * w[3], c * w[4]]),
+                         ny)
         if want_hessian:
-            pairs = [(iR_a, iR_a, 6 * ga + 2 * gb), (iR_b, iR_b, 2 * ga + 6 * gb), (iR_a, iR_b, 2 * ga + 2 * gb),
-                     (iR_a, ig_a, 6 * a + 2 * b), (iR_a, ig_b, 2 * a + 2 * b),
-                     (iR_b, ig_a, 2 * a + 2 * b), (iR_b, ig_b, 2 * a + 6 * b)]
+            pairs = [(iR_a, iR_a, w[5]), (iR_b, iR_b, w[6]), (iR_a, iR_b, w[7]), (iR_a, ig_a, w[8]), (iR_a, ig_b, w[9]),
+                     (iR_b, ig_a, w[10]), (iR_b, ig_b, w[11])]
             for i, j, v in pairs:
                 rows += [i] if i is j else [i, j]
                 cols += [j] if i is j else [j, i]
@@ -618,7 +619,9 @@ def _kinetic_chart_numpy(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, ne
 
 from numba import njit  # noqa: E402
 
-from ..lattice.centreline import k_centreline_weights, k_stretched_derivatives  # noqa: E402
+from ..lattice.centreline import k_centreline_weights, k_stencil_point, k_stretched_derivatives  # noqa: E402
+from ..lattice.lie import k_hat  # noqa: E402
+from .rod import k_chords, k_gamma, k_strain_gradient  # noqa: E402
 
 _EPS = np.finfo(float).eps
 
@@ -657,17 +660,8 @@ def _k_labels_ok(s, n_nodes, ds, periodic, increasing, on_centreline):
 
 
 @njit(cache=True)
-def _stretch_weight(j, n_nodes, periodic):
-    """T_je for j an end node of element e: the element's share of the nodal stretch gamma_j (§10.3,
-    `stretch_map`): 1/2, but 1 at a closed tube's end nodes, which have one element only."""
-    if not periodic and (j == 0 or j == n_nodes - 1):
-        return 1.0
-    return 0.5
-
-
-@njit(cache=True)
 def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
-    """`element_strains` into pa, pb, G (n_el, 3)."""
+    """`element_strains` into pa, pb, G (n_el, 3) (the rod's kernels, varint.terms.rod.k_chords and k_gamma)."""
     n = r.shape[0]
     dr = np.empty(3)
     for e in range(pa.shape[0]):
@@ -676,15 +670,8 @@ def _k_element_strains(Lam, r, ds, periodic, period, pa, pb, G):
             dr[i] = r[b, i] - r[e, i]
             if periodic and e == pa.shape[0] - 1:
                 dr[i] += period[i]
-        for i in range(3):
-            xa = 0.0
-            xb = 0.0
-            for k in range(3):
-                xa += Lam[e, k, i] * dr[k]
-                xb += Lam[b, k, i] * dr[k]
-            pa[e, i] = xa
-            pb[e, i] = xb
-            G[e, i] = 0.5 * (xa + xb) / ds
+        k_chords(Lam[e], Lam[b], dr, pa[e], pb[e])
+        k_gamma(Lam[e], Lam[b], dr, ds, G[e])
 
 
 @njit(cache=True)
@@ -714,7 +701,7 @@ def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period)
         for i in range(3):
             ghat[e, i] /= Gn[e]
         for j in (e, (e + 1) % n):
-            gamma[j] += _stretch_weight(j, n, periodic) * Gn[e]
+            gamma[j] += k_stretch_weight(j, n, periodic) * Gn[e]
     sbar = 0.5 * (s0 + s1)
     Rbar = 0.5 * (R0 + R1)
     rbar = 0.5 * (r0 + r1)
@@ -739,29 +726,24 @@ def _k_potential_setup(s0, s1, R0, R1, r0, r1, Lam0, Lam1, ds, periodic, period)
 
 
 @njit(cache=True)
-def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds):
-    """`_rod_gradient` of one element: A_e^T gG into nodes a, b of out (n_nodes, 6)."""
-    c = 0.5 / ds
-    for i in range(3):
-        f = 0.0
-        for k in range(3):
-            f += (Lam[a, i, k] + Lam[b, i, k]) * gG[k]
-        out[a, i] -= c * f
-        out[b, i] += c * f
-    # gG x p: the sigma rows (dGamma/dsigma = hat(p)/(2 ds), hat(p)^T gG = gG x p)
-    out[a, 3] += c * (gG[1] * pa[2] - gG[2] * pa[1])
-    out[a, 4] += c * (gG[2] * pa[0] - gG[0] * pa[2])
-    out[a, 5] += c * (gG[0] * pa[1] - gG[1] * pa[0])
-    out[b, 3] += c * (gG[1] * pb[2] - gG[2] * pb[1])
-    out[b, 4] += c * (gG[2] * pb[0] - gG[0] * pb[2])
-    out[b, 5] += c * (gG[0] * pb[1] - gG[1] * pb[0])
+def _add_rod_gradient(out, Lam, pa, pb, a, b, gG, ds, d12):
+    """`_rod_gradient` of one element: A_e^T gG (varint.terms.rod.k_strain_gradient, into the scratch d12) added into
+    nodes a, b of out (n_nodes, 6)."""
+    k_strain_gradient(Lam[a], Lam[b], pa, pb, gG, ds, d12)
+    for i in range(6):
+        out[a, i] += d12[i]
+        out[b, i] += d12[6 + i]
 
 
 @njit(cache=True)
-def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X):
-    """`centreline_and_weights`: weights of labels s on r and X, X', X'' (the period added to the nodes
-    past the end of a periodic tube)."""
+def _centreline_points(s, r, ds, periodic, period):
+    """`centreline_and_weights`: ``(nodes, N, dN, d2N, X, X', X'')``, the weights of labels s on r and the centreline
+    they give (the period added to the nodes past the end of a periodic tube)."""
     n = r.shape[0]
+    m = s.shape[0]
+    nodes = np.empty((m, 4), np.int64)
+    N, dN, d2N = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
+    X, dX, d2X = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     k_centreline_weights(s, n, ds, periodic, nodes, N, dN, d2N)
     for k in range(s.shape[0]):
         e = int(math.floor(s[k] / ds))
@@ -770,12 +752,12 @@ def _centreline_points(s, r, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X
             dX[k, d] = 0.0
             d2X[k, d] = 0.0
         for i in range(4):
-            wrap = (e - 1 + i) // n if periodic else 0
             for d in range(3):
-                p = r[nodes[k, i], d] + wrap * period[d]
+                p = k_stencil_point(r, nodes[k, i], e, i, n, periodic, period, d)
                 X[k, d] += N[k, i] * p
                 dX[k, d] += dN[k, i] * p
                 d2X[k, d] += d2N[k, i] * p
+    return nodes, N, dN, d2N, X, dX, d2X
 
 
 @njit(cache=True)
@@ -802,25 +784,26 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
         for e in range(nR if periodic else nR - 1):
             ja = e
             jb = (e + 1) % nR
-            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
-            U += c * (ga * (3 * a * a + 2 * a * b + b * b) + gb * (a * a + 2 * a * b + 3 * b * b))
-            gy[o_R + ja] += c * (ga * (6 * a + 2 * b) + gb * (2 * a + 2 * b))
-            gy[o_R + jb] += c * (ga * (2 * a + 2 * b) + gb * (2 * a + 6 * b))
-            gy[o_g + ja] += c * (3 * a * a + 2 * a * b + b * b)
-            gy[o_g + jb] += c * (a * a + 2 * a * b + 3 * b * b)
+            w = k_whole_element(Rbar[ja], Rbar[jb], gamma[ja], gamma[jb])
+            U += c * w[0]
+            gy[o_R + ja] += c * w[1]
+            gy[o_R + jb] += c * w[2]
+            gy[o_g + ja] += c * w[3]
+            gy[o_g + jb] += c * w[4]
     dU_dG = np.zeros(n_el)
     rod0 = np.zeros((n, 6))
     rod1 = np.zeros((n, 6))
     gG = np.empty(3)
+    d12 = np.empty(12)
     for e in range(n_el):
         b = (e + 1) % n
         for j in (e, b):
-            dU_dG[e] += _stretch_weight(j, n, periodic) * gy[o_g + j]
+            dU_dG[e] += k_stretch_weight(j, n, periodic) * gy[o_g + j]
         # dL/dGamma^l_e = 1/2 dL/dGammabar_e = -h/2 dU/dG_e ghat_e
         for i in range(3):
             gG[i] = -0.5 * h * dU_dG[e] * ghat[e, i]
-        _add_rod_gradient(rod0, Lam0, pa0[e], pb0[e], e, b, gG, ds)
-        _add_rod_gradient(rod1, Lam1, pa1[e], pb1[e], e, b, gG, ds)
+        _add_rod_gradient(rod0, Lam0, pa0[e], pb0[e], e, b, gG, ds, d12)
+        _add_rod_gradient(rod1, Lam1, pa1[e], pb1[e], e, b, gG, ds, d12)
     Ds = np.empty(n_lab)
     for k in range(n_lab):
         Ds[k] = -0.5 * h * gy[k]
@@ -829,14 +812,7 @@ def _k_potential_gradient(h, ds, periodic, period, sbar, Rbar, gamma, rbar, Lam0
         DR[j] = -0.5 * h * gy[o_R + j]
     if grav:
         # -g . sum_k mbar_k X(sbar_k; rbar): linear in r with weights summing to one
-        nodes = np.empty((n_lab, 4), np.int64)
-        N = np.empty((n_lab, 4))
-        dN = np.empty((n_lab, 4))
-        d2N = np.empty((n_lab, 4))
-        X = np.empty((n_lab, 3))
-        dX = np.empty((n_lab, 3))
-        d2X = np.empty((n_lab, 3))
-        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        nodes, N, dN, d2N, X, dX, d2X = _centreline_points(sbar, rbar, ds, periodic, period)
         for k in range(n_lab):
             U -= mbar[k] * (X[k, 0] * g[0] + X[k, 1] * g[1] + X[k, 2] * g[2])
             Ds[k] += 0.5 * h * mbar[k] * (dX[k, 0] * g[0] + dX[k, 1] * g[1] + dX[k, 2] * g[2])
@@ -955,14 +931,6 @@ def _mm3(A, B, sign, out, col):
 
 
 @njit(cache=True)
-def _hat3(p, c, out):
-    """out = c hat(p)."""
-    out[0, 0] = out[1, 1] = out[2, 2] = 0.0
-    out[0, 1], out[0, 2], out[1, 2] = -c * p[2], c * p[1], -c * p[0]
-    out[1, 0], out[2, 0], out[2, 1] = c * p[2], -c * p[1], c * p[0]
-
-
-@njit(cache=True)
 def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, Lam0, Lam1, pa0, pb0, pa1, pb1,
                         Gn, ghat, dU_dG, index, gV, HV, c1, c2, p_ext, g, mbar, grav):
     """The potential's Newton block (see the section notes) as COO (rows, cols, vals).
@@ -1013,18 +981,13 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         for e in range(n_pe):
             ja = e
             jb = (e + 1) % nR
-            a, b, ga, gb = Rbar[ja], Rbar[jb], gamma[ja], gamma[jb]
+            w = k_whole_element(Rbar[ja], Rbar[jb], gamma[ja], gamma[jb])
             iRa, iRb, iga, igb = o_R + ja, o_R + jb, o_g + ja, o_g + jb
             # (R_a, R_a), (R_b, R_b) once; the off-diagonal pairs both ways (`_potential_in_y`)
             pr = (iRa, iRb, iRa, iRb, iRa, iga, iRa, igb, iRb, iga, iRb, igb)
             pc = (iRa, iRb, iRb, iRa, iga, iRa, igb, iRa, iga, iRb, igb, iRb)
-            v_ab = c * (2 * ga + 2 * gb)
-            v_aga = c * (6 * a + 2 * b)
-            v_agb = c * (2 * a + 2 * b)
-            v_bga = c * (2 * a + 2 * b)
-            v_bgb = c * (2 * a + 6 * b)
-            pv = (c * (6 * ga + 2 * gb), c * (2 * ga + 6 * gb), v_ab, v_ab, v_aga, v_aga, v_agb, v_agb,
-                  v_bga, v_bga, v_bgb, v_bgb)
+            pv = (c * w[5], c * w[6], c * w[7], c * w[7], c * w[8], c * w[8], c * w[9], c * w[9], c * w[10], c * w[10],
+                  c * w[11], c * w[11])
             for q in range(12):
                 hr[t] = pr[q]
                 hc[t] = pc[q]
@@ -1075,15 +1038,15 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         # A^n_e with its translational columns rotated by Lambda^n (rows of D1 in the level-n body frame)
         _mm3(LT0, Lam0[a], -1.0, A0, 0)
         _mm3(LT0, Lam0[b], 1.0, A0, 6)
-        _hat3(pa0[e], 0.5 / ds, ha)
-        _hat3(pb0[e], 0.5 / ds, hb)
+        k_hat(pa0[e], 0.5 / ds, ha)
+        k_hat(pb0[e], 0.5 / ds, hb)
         A0[:, 3:6] = ha
         A0[:, 9:12] = hb
         # A^{n+1}_e B_e: translations b -> Lambda^n b, rotations xi -> sigma = dcay(-xi) dxi
         _mm3(LT1, Lam0[a], -1.0, C, 0)
         _mm3(LT1, Lam0[b], 1.0, C, 6)
-        _hat3(pa1[e], 0.5 / ds, ha)
-        _hat3(pb1[e], 0.5 / ds, hb)
+        k_hat(pa1[e], 0.5 / ds, ha)
+        k_hat(pb1[e], 0.5 / ds, hb)
         _mm3(ha, Dc[a], 1.0, C, 3)
         _mm3(hb, Dc[b], 1.0, C, 9)
         w = dU_dG[e] / Gn[e]
@@ -1127,7 +1090,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         t += 1
     for e in range(n_el):
         for j in (e, (e + 1) % n):
-            wj = _stretch_weight(j, n, periodic)
+            wj = k_stretch_weight(j, n, periodic)
             for l in range(12):
                 yr[t], yc[t], yv[t] = o_g + j, ecol[e, l], wj * kappa[e, l]
                 t += 1
@@ -1171,7 +1134,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
         for l in range(12):
             row = ecol[e, l]
             for j in (e, (e + 1) % n):
-                rr[t], rc[t], rv[t] = row, o_g + j, _stretch_weight(j, n, periodic) * rho[e, l]
+                rr[t], rc[t], rv[t] = row, o_g + j, k_stretch_weight(j, n, periodic) * rho[e, l]
                 t += 1
             rr[t], rc[t], rv[t] = row, ny + 12 * e + l, 1.0
             t += 1
@@ -1191,14 +1154,7 @@ def _k_potential_newton(h, ds, periodic, period, n_mu, sbar, Rbar, gamma, rbar, 
     cols[:nJ] = Ji
     vals[:nJ] = Jx
     if grav:
-        nodes = np.empty((n_lab, 4), np.int64)
-        N = np.empty((n_lab, 4))
-        dN = np.empty((n_lab, 4))
-        d2N = np.empty((n_lab, 4))
-        X = np.empty((n_lab, 3))
-        dX = np.empty((n_lab, 3))
-        d2X = np.empty((n_lab, 3))
-        _centreline_points(sbar, rbar, ds, periodic, period, nodes, N, dN, d2N, X, dX, d2X)
+        nodes, N, dN, d2N, X, dX, d2X = _centreline_points(sbar, rbar, ds, periodic, period)
         q = nJ
         for k in range(n_lab):
             for i in range(4):
@@ -1260,20 +1216,8 @@ def _k_kinetic_chart(s0, r0, Lam0, s1, r1, mbar, h, ds, periodic, period, newton
     Lambda^nT of their node, columns mapped to b by Lambda^n of theirs."""
     n = r0.shape[0]
     n_lab = s0.shape[0]
-    nodes0 = np.empty((n_lab, 4), np.int64)
-    nodes1 = np.empty((n_lab, 4), np.int64)
-    N0 = np.empty((n_lab, 4))
-    N1 = np.empty((n_lab, 4))
-    dN0 = np.empty((n_lab, 4))
-    dN1 = np.empty((n_lab, 4))
-    d2N = np.empty((n_lab, 4))
-    X0 = np.empty((n_lab, 3))
-    X1 = np.empty((n_lab, 3))
-    dX0 = np.empty((n_lab, 3))
-    dX1 = np.empty((n_lab, 3))
-    d2X = np.empty((n_lab, 3))
-    _centreline_points(s0, r0, ds, periodic, period, nodes0, N0, dN0, d2N, X0, dX0, d2X)
-    _centreline_points(s1, r1, ds, periodic, period, nodes1, N1, dN1, d2N, X1, dX1, d2X)
+    nodes0, N0, dN0, _, X0, dX0, _ = _centreline_points(s0, r0, ds, periodic, period)
+    nodes1, N1, dN1, _, X1, dX1, _ = _centreline_points(s1, r1, ds, periodic, period)
     rod0 = np.zeros((n, 6))
     rod1 = np.zeros((n, 6))
     gs0 = np.zeros(n_lab)
@@ -1471,17 +1415,31 @@ def fluid_kinetic_metric(s, r, mbar, ds, periodic=False, period=None):
 
     as the sparse (n_nodes 6 + M+1)^2 matrix Jx^T diag(mbar) Jx in the ordering [rod (rdot, omega) 6/node |
     sdot (M+1)] (the s block of :func:`newton_offsets`; no omega entries: the plug flow has no rotary
-    inertia, §10.0).  Returns ``(metric CSR, Jx)``, Jx (3(M+1), n) mapping velocities to the labels' Xdot.
+    inertia, §10.0).  Returns ``(metric CSR, Jx)``, Jx (3(M+1), n) mapping velocities to the labels' Xdot
+    (:func:`kinetic_metric_of` of the centreline's weights).
     """
-    n_nodes, n_lab = len(r), len(s)
     nodes, Nw, _, _, dX, _ = centreline_and_weights(s, r, ds, periodic, period)
-    k = np.repeat(np.arange(n_lab), 4)
+    return kinetic_metric_of(nodes, Nw, dX, mbar, len(r))
+
+
+def label_velocity_map(nodes, Nw, dX, n_nodes):
+    """Jx (3(M+1) x (6 n_nodes + M+1), CSR): the labels' velocities Xdot_k = sum_a N_a(s_k) rdot_a + X'(s_k) sdot_k from
+    the velocities [per node (rdot, omega) | sdot per label], for the weights ``Nw`` of nodes ``nodes`` (M+1, any number
+    per label: a Catmull-Rom stencil, or an open end's extended one folded onto the real nodes) and the tangents dX."""
+    n_lab, per = nodes.shape
+    k = np.repeat(np.arange(n_lab), per)
     rr = (3 * k[:, None] + np.arange(3)).ravel()
-    rc = (6 * nodes.ravel()[:, None] + np.arange(3)).ravel()
-    rv = np.repeat(Nw.ravel(), 3)
+    rc = (6 * np.ravel(nodes)[:, None] + np.arange(3)).ravel()
+    rv = np.repeat(np.ravel(Nw), 3)
     lr = (3 * np.arange(n_lab)[:, None] + np.arange(3)).ravel()
     lc = np.repeat(6 * n_nodes + np.arange(n_lab), 3)
-    n = 6 * n_nodes + n_lab
-    Jx = sp.csr_matrix((np.concatenate([rv, dX.ravel()]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
-                       shape=(3 * n_lab, n))
+    return sp.csr_matrix((np.concatenate([rv, np.ravel(dX)]), (np.concatenate([rr, lr]), np.concatenate([rc, lc]))),
+                         shape=(3 * n_lab, 6 * n_nodes + n_lab))
+
+
+def kinetic_metric_of(nodes, Nw, dX, mbar, n_nodes):
+    """``(Jx^T diag(mbar) Jx CSR, Jx)``: the fluid's kinetic metric of :func:`fluid_kinetic_metric` from the labels'
+    weights (:func:`label_velocity_map`): the one construction, for the modes, the level energy of the coupled tube
+    (varint.run.simulation) and its open ends' (varint.run.open_ends)."""
+    Jx = label_velocity_map(nodes, Nw, dX, n_nodes)
     return (Jx.T @ sp.diags(np.repeat(np.asarray(mbar, dtype=np.float64), 3)) @ Jx).tocsr(), Jx

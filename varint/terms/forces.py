@@ -20,7 +20,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Declaration", "TipTorque", "derive_invariants", "BASE_INVARIANTS"]
+from numba import njit
+
+from ..lattice.lie import hat, k_body
+
+__all__ = ["Declaration", "TipTorque", "derive_invariants", "BASE_INVARIANTS", "k_tip_torque"]
 
 #: what a closed mechanical system without external fields keeps
 BASE_INVARIANTS = ("energy", "linear_momentum", "angular_momentum")
@@ -75,6 +79,15 @@ class Force:
         return None
 
 
+@njit(cache=True, inline="always")
+def k_tip_torque(c, L, torque, out):
+    """out[i] += c (L^T T)_i: a dead torque T in the body frame L of the tip, times c (h/2: the discrete forces f^-,
+    f^+ of a step with the level's tip frame; 1: the static generalised force).  TipTorque and the compiled rod step
+    (varint.schemes.rod_compiled) both add it with this kernel."""
+    for i in range(3):
+        out[i] += c * k_body(L, torque, i)
+
+
 class TipTorque(Force):
     """A dead (spatially fixed) torque T at the tip s = L of a rod.
 
@@ -89,9 +102,11 @@ class TipTorque(Force):
     def __init__(self, torque):
         self.torque = np.asarray(torque, dtype=float)
 
-    def body(self, Lam):
-        """The torque in the tip's body frame, Lambda_N^T T."""
-        return Lam[-1].T @ self.torque
+    def body(self, Lam, c=1.0):
+        """The torque in the tip's body frame, c Lambda_N^T T (:func:`k_tip_torque`)."""
+        out = np.zeros(3)
+        k_tip_torque(c, np.ascontiguousarray(Lam[-1], dtype=np.float64), self.torque, out)
+        return out
 
     def add(self, pt, d, level):
         """Add f^- (``level`` 0, level-n frames) or f^+ (1, level n+1) into the step's derivatives ``d``
@@ -105,7 +120,7 @@ class TipTorque(Force):
     def discrete(self, h, Lam):
         """f^- (with the level-n frames) or f^+ (level n+1): (N+1, 6), zero but at the tip's sigma."""
         f = np.zeros((Lam.shape[0], 6))
-        f[-1, 3:] = 0.5 * h * self.body(Lam)
+        f[-1, 3:] = self.body(Lam, 0.5 * h)
         return f
 
     def generalised(self, Lam):
@@ -116,8 +131,7 @@ class TipTorque(Force):
 
     def stiffness_block(self, Lam):
         """d(generalised force at the tip)/d sigma_N under Lambda_N -> Lambda_N cay(sigma): hat(Lambda_N^T T)."""
-        v = self.body(Lam)
-        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+        return hat(self.body(Lam))
 
     def work(self, h, Lam_n, Lam_1, xi):
         """Work over a step, (f^- + f^+) . xi_N / h: the mean body torque times the tip's rotation

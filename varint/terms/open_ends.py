@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .forces import Declaration, Force
+from ..lattice.parcels import volume_below
 
 __all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures", "OpenLevelConstraint",
            "section_at", "open_end_limits"]
@@ -40,11 +41,9 @@ class Duct:
         self.N = len(self.R) - 1
         self.L = self.N * self.ds
         self.uniform = bool(np.all(self.R == self.R[0]))
-        a, b = self.R[:-1], self.R[1:]
-        self.F_nodes = np.concatenate([[0.0], np.cumsum(self.ds * math.pi * (a * a + a * b + b * b) / 3.0)])
         self.A_in = math.pi * self.R[0] ** 2
         self.A_out = math.pi * self.R[-1] ** 2
-        self.volume = float(self.F_nodes[-1])
+        self.volume = float(volume_below(self.L, self.R, self.ds))
 
     def _locate(self, s):
         e = np.clip(np.floor(s / self.ds), 0, self.N - 1).astype(np.int64)
@@ -55,8 +54,7 @@ class Duct:
         s = np.asarray(s, dtype=np.float64)
         if self.uniform:
             return self.A_in * s
-        e, t, a, b = self._locate(s)
-        inside = self.F_nodes[e] + self.ds * math.pi * (a * a * t + a * (b - a) * t * t + (b - a) ** 2 * t ** 3 / 3.0)
+        inside = volume_below(s, self.R, self.ds)
         return np.where(s < 0.0, self.A_in * s, np.where(s > self.L, self.volume + self.A_out * (s - self.L), inside))
 
     def A(self, s):

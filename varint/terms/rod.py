@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,7 +37,7 @@ from numba import njit
 
 from .forces import Declaration, TipTorque, derive_invariants
 from ..scene.initial import shape_profile
-from ..lattice.lie import cay, cay_inv
+from ..lattice.lie import cay, cay_inv, k_body, k_cay, k_cay_inv
 
 __all__ = ["RodSection", "RodPart", "rod_section", "banded_jacobian", "reorthonormalize", "pack_level", "unpack_level"]
 
@@ -114,10 +115,6 @@ def rod_section(rod, inner_radius):
 
 def _T(A):
     return np.swapaxes(A, -1, -2)
-
-
-def _mv(A, v):
-    return np.einsum("...ij,...j->...i", A, v)
 
 
 class RodPart:
@@ -235,11 +232,10 @@ class RodPart:
     # -- discrete Lagrangian pieces ---------------------------------------------
 
     def strains(self, Lam, r):
-        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds."""
-        La, Lb = Lam[..., :-1, :, :], Lam[..., 1:, :, :]
-        Om = cay_inv(_T(La) @ Lb) / self.ds
-        Ga = _mv(_T(0.5 * (La + Lb)), r[..., 1:, :] - r[..., :-1, :]) / self.ds
-        return Om, Ga
+        """Element strains at one level: Omega = cay^-1(L_j^T L_{j+1})/ds, Gamma = 1/2 (L_j + L_{j+1})^T dr / ds
+        (:func:`level_strains`; leading batch axes, real or complex)."""
+        st = level_strains(Lam, r, self.ds)
+        return st.Omega, st.Gamma
 
     def lagrangian_pieces(self, h, Lam_n, r_n, xi, r_1, sig=None, dr=None, level=0):
         """Per-element discrete Lagrangian (B, N) and per-node extra pieces (B, N+1).
@@ -379,30 +375,30 @@ class RodPart:
             self._exact_consts = c
         return c
 
-    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2)):
+    def gradients(self, h, Lam_n, r_n, xi, r_1, load_factor=1.0, levels=(0, 2), dr=None, elastic=True):
         """(D1, D2, L_d): d L_d / d(dr, sigma) at levels n and n+1, each (N+1, 6), from the analytic
-        element gradients (``k_element``; docs/theory.md §9), and the value of L_d.  ``levels``: the
-        range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros)."""
+        element gradients (``k_element`` summed by ``k_rod_gradient``; docs/theory.md §9), and the value of L_d.
+        ``levels``: the range of levels computed ((0, 1): D1 only, (1, 2): D2 only; the other is returned as zeros).
+        ``dr``: the increments r_1 - r_n when the caller has them unrounded (the step's Lambda_n b), else formed here;
+        ``elastic=False``: the kinetic, weight and tip-force pieces only (the stiffnesses set to zero)."""
         _, rhoA, inertia, J, K, g, force = self._consts(load_factor)
-        D1 = np.empty((self.N + 1, 6))
-        D2 = np.empty((self.N + 1, 6))
+        if not elastic:
+            J, K = np.zeros(3), np.zeros(3)
         f8 = np.float64
+        Lam_n = np.ascontiguousarray(Lam_n, dtype=f8)
+        r_n = np.ascontiguousarray(r_n, dtype=f8)
+        dr = np.ascontiguousarray(np.asarray(r_1, dtype=f8) - r_n if dr is None else dr, dtype=f8)
+        D1 = np.zeros((self.N + 1, 6))
+        D2 = np.zeros((self.N + 1, 6))
         try:
-            L = _k_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure,
-                            np.ascontiguousarray(Lam_n, dtype=f8), np.ascontiguousarray(r_n, dtype=f8),
-                            np.ascontiguousarray(xi, dtype=f8), np.ascontiguousarray(r_1, dtype=f8), levels[0], levels[1],
-                            D1, D2)
+            L = _k_rod_gradient(float(h), self.ds, rhoA, inertia, J, K, g, force, self.paper_measure, Lam_n, r_n,
+                                np.ascontiguousarray(xi, dtype=f8), dr, levels[0], levels[1], D1, D2)
         except ZeroDivisionError:
             # a Newton iterate turned some frame, or some element's relative rotation, by pi: the Cayley
             # chart is singular there.  Not finite: Newton backtracks or reports the step as failed.
-            D1[:] = np.nan
-            D2[:] = np.nan
+            D1[:] = np.nan if levels[0] == 0 else 0.0
+            D2[:] = np.nan if levels[1] == 2 else 0.0
             L = np.nan
-        # the kernel leaves a level it does not compute unwritten (scratch): return it as zeros, as documented
-        if levels[0] > 0:
-            D1[:] = 0.0
-        if levels[1] < 2:
-            D2[:] = 0.0
         return D1, D2, L
 
     def derivative(self, h, Lam_n, r_n, xi, r_1, level, load_factor=1.0):
@@ -594,28 +590,6 @@ def origin_shift(x):
 
 
 @njit(cache=True, inline="always")
-def k_cay(w0, w1, w2, out):
-    c = 4.0 / (4.0 + w0 * w0 + w1 * w1 + w2 * w2)
-    out[0, 0] = 1.0 - 0.5 * c * (w1 * w1 + w2 * w2)
-    out[1, 1] = 1.0 - 0.5 * c * (w0 * w0 + w2 * w2)
-    out[2, 2] = 1.0 - 0.5 * c * (w0 * w0 + w1 * w1)
-    out[0, 1] = c * (-w2 + 0.5 * w0 * w1)
-    out[1, 0] = c * (w2 + 0.5 * w0 * w1)
-    out[0, 2] = c * (w1 + 0.5 * w0 * w2)
-    out[2, 0] = c * (-w1 + 0.5 * w0 * w2)
-    out[1, 2] = c * (-w0 + 0.5 * w1 * w2)
-    out[2, 1] = c * (w0 + 0.5 * w1 * w2)
-
-
-@njit(cache=True, inline="always")
-def _k_cay_inv(L, out):
-    f = 2.0 / (1.0 + L[0, 0] + L[1, 1] + L[2, 2])
-    out[0] = f * (L[2, 1] - L[1, 2])
-    out[1] = f * (L[0, 2] - L[2, 0])
-    out[2] = f * (L[1, 0] - L[0, 1])
-
-
-@njit(cache=True, inline="always")
 def _k_mm(A, B, out):
     for i in range(3):
         for j in range(3):
@@ -630,20 +604,148 @@ def _k_mtm(A, B, out):
             out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
 
 
+# ---------------------------------------------------------------------------
+# the strains of an element (docs/theory.md §9), the one place their formulas are written: every kernel of the rod
+# (the step's element kernel, the constraint's, the paper measure, the fluid's stretch, the energy-momentum step's
+# discrete gradient) and the NumPy functions (:func:`level_strains`) build on these.  Any scalar type (real, or
+# complex for complex steps).
+
+
+@njit(cache=True, inline="always")
+def k_chords(La, Lb, d, pa, pb):
+    """The element's chord d = r_b - r_a in the body frames of its two nodes: pa = La^T d, pb = Lb^T d."""
+    for i in range(3):
+        pa[i] = k_body(La, d, i)
+        pb[i] = k_body(Lb, d, i)
+
+
+@njit(cache=True, inline="always")
+def k_gamma(La, Lb, d, ds, G):
+    """Gamma = (La + Lb)^T d / (2 ds) (= (pa + pb) / (2 ds)) of an element at one level, d = r_b - r_a, into G."""
+    for i in range(3):
+        G[i] = 0.5 * ((La[0, i] + Lb[0, i]) * d[0] + (La[1, i] + Lb[1, i]) * d[1] + (La[2, i] + Lb[2, i]) * d[2]) / ds
+
+
+@njit(cache=True, inline="always")
+def k_gamma_mid(pa0_i, pb0_i, pa1_i, pb1_i, ds):
+    """Component i of the strain midpoint Gammabar = (Gamma^n + Gamma^{n+1}) / 2 from both levels' chords."""
+    return 0.25 * (pa0_i + pb0_i + pa1_i + pb1_i) / ds
+
+
+@njit(cache=True, inline="always")
+def k_turn(La, Lb, T, om):
+    """The element's relative rotation T = La^T Lb and om = cay^-1(T) = ds Omega (its curvature times ds); returns
+    (c, a0, a1, a2), c = 1 + tr T and a the axial vector of T - T^T (unhalved): om = 2 a / c."""
+    _k_mtm(La, Lb, T)
+    return k_cay_inv(T, om)
+
+
+@njit(cache=True, inline="always")
+def k_element_strains(La, Lb, d, ds, T, pa, pb, G, a, om):
+    """An element's strains at one level: chords pa, pb (:func:`k_chords`), Gamma into G (:func:`k_gamma`), om = ds
+    Omega and a (:func:`k_turn`); returns c = 1 + tr(La^T Lb)."""
+    k_chords(La, Lb, d, pa, pb)
+    k_gamma(La, Lb, d, ds, G)
+    c, a[0], a[1], a[2] = k_turn(La, Lb, T, om)
+    return c
+
+
+@njit(cache=True, inline="always")
+def k_strain_force(La, Lb, pa, pb, gG, ds, i):
+    """Component i of A^T gG, the gradient in one level's variations [dr_a, sigma_a, dr_b, sigma_b] (dr spatial,
+    Lambda -> Lambda cay(sigma)) of a function of the element's Gamma at that level whose Gamma-derivative is gG:
+    (f, sa, sb) with the dr_a row -f, the dr_b row f and the sigma rows sa, sb.  dGamma/ddr_b = -dGamma/ddr_a =
+    (La + Lb)^T / (2 ds), dGamma/dsigma_a = hat(pa) / (2 ds) (Lambda^T d turns into p + p x sigma), so sa = (gG x pa)_i
+    / (2 ds).  (Per component, in registers: the rod's element kernel adds its other pieces before it stores a row.)"""
+    j = (i + 1) % 3
+    k = (i + 2) % 3
+    f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+    return f, (gG[j] * pa[k] - gG[k] * pa[j]) / (2.0 * ds), (gG[j] * pb[k] - gG[k] * pb[j]) / (2.0 * ds)
+
+
+@njit(cache=True, inline="always")
+def k_strain_gradient(La, Lb, pa, pb, gG, ds, D):
+    """D (12) = A^T gG (:func:`k_strain_force`) in the layout [dr_a, sigma_a, dr_b, sigma_b]: the constraint's element
+    kernel and the fluid's stretch force (varint.terms.coupled)."""
+    for i in range(3):
+        f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds, i)
+        D[i] = -f
+        D[3 + i] = sa
+        D[6 + i] = f
+        D[9 + i] = sb
+
+
+@njit(cache=True, inline="always")
+def k_strain_gradients(L0a, L0b, L1a, L1b, pa0, pb0, pa1, pb1, gG, ds, lev_lo, lev_hi, D1, D2):
+    """:func:`k_strain_gradient` of a function of the strain midpoint at the levels lev_lo <= level < lev_hi: level n
+    (frames L0a, L0b, chords pa0, pb0) into D1, level n+1 into D2; gG is its derivative in either level's Gamma."""
+    for lev in range(lev_lo, lev_hi):
+        if lev == 0:
+            k_strain_gradient(L0a, L0b, pa0, pb0, gG, ds, D1)
+        else:
+            k_strain_gradient(L1a, L1b, pa1, pb1, gG, ds, D2)
+
+
+@njit(cache=True, inline="always")
+def k_strains_row(Lam, r, ds, periodic, period, Om, Ga, pa, pb, a, c, T, d, om):
+    """:func:`k_element_strains` of every element of a lattice: Lam (n, 3, 3), r (n, 3); elements (e, e + 1), and on a
+    periodic lattice of n distinct nodes also (n - 1, 0) with the period (3,) added to its chord.  Writes Om (=
+    Omega), Ga, pa, pb, a (n_el, 3) and c (n_el,); T (3, 3), d, om (3): scratch."""
+    n = r.shape[0]
+    for e in range(Om.shape[0]):
+        f = (e + 1) % n
+        for i in range(3):
+            d[i] = r[f, i] - r[e, i]
+            if periodic and e == n - 1:
+                d[i] += period[i]
+        c[e] = k_element_strains(Lam[e], Lam[f], d, ds, T, pa[e], pb[e], Ga[e], a[e], om)
+        for i in range(3):
+            Om[e, i] = om[i] / ds
+
+
 @njit(cache=True)
-def _k_strains(Lam, r, ds, Om, Ga):
-    N = Lam.shape[0] - 1
-    T = np.empty((3, 3), dtype=np.complex128)
-    for e in range(N):
-        _k_mtm(Lam[e], Lam[e + 1], T)
-        _k_cay_inv(T, Om[e])
-        for i in range(3):
-            Om[e, i] /= ds
-        for i in range(3):
-            s = 0.0 + 0.0j
-            for k in range(3):
-                s += 0.5 * (Lam[e, k, i] + Lam[e + 1, k, i]) * (r[e + 1, k] - r[e, k])
-            Ga[e, i] = s / ds
+def k_strains_rows(Lam, r, ds, periodic, period, Om, Ga, pa, pb, a, c):
+    """:func:`k_strains_row` of each row b of a batch: Lam (B, n, 3, 3), r (B, n, 3) -> Om, Ga, pa, pb, a (B, n_el, 3),
+    c (B, n_el)."""
+    T = np.empty((3, 3), Om.dtype)
+    d = np.empty(3, Om.dtype)
+    om = np.empty(3, Om.dtype)
+    for b in range(r.shape[0]):
+        k_strains_row(Lam[b], r[b], ds, periodic, period, Om[b], Ga[b], pa[b], pb[b], a[b], c[b], T, d, om)
+
+
+class Strains(NamedTuple):
+    """The strains of every element at one level (:func:`level_strains`): Omega = cay^-1(La^T Lb) / ds, Gamma =
+    (La + Lb)^T (r_b - r_a) / (2 ds), the chords pa = La^T (r_b - r_a), pb = Lb^T (r_b - r_a), and a, c with
+    ds Omega = 2 a / c (a the axial vector of La^T Lb - Lb^T La, c = 1 + tr La^T Lb)."""
+
+    Omega: np.ndarray
+    Gamma: np.ndarray
+    pa: np.ndarray
+    pb: np.ndarray
+    a: np.ndarray
+    c: np.ndarray
+
+
+def level_strains(Lam, r, ds, periodic=False, period=None):
+    """:class:`Strains` of the elements of frames (or directors: any 3 x 3 matrices) ``Lam`` (..., n, 3, 3) and positions
+    ``r`` (..., n, 3), leading batch axes broadcast, real or complex (through :func:`k_strains_rows`).  Elements
+    (j, j + 1); ``periodic``: n distinct nodes and a closing element (n - 1, 0) whose chord adds ``period`` (default
+    n ds E_1)."""
+    Lam, r = np.asarray(Lam), np.asarray(r)
+    dt = np.result_type(Lam, r, np.float64)
+    batch = np.broadcast_shapes(Lam.shape[:-3], r.shape[:-2])
+    n = r.shape[-2]
+    n_el = n if periodic else n - 1
+    L2 = np.ascontiguousarray(np.broadcast_to(Lam, batch + (n, 3, 3)), dtype=dt).reshape(-1, n, 3, 3)
+    r2 = np.ascontiguousarray(np.broadcast_to(r, batch + (n, 3)), dtype=dt).reshape(-1, n, 3)
+    B = r2.shape[0]
+    d = np.array([n * ds, 0.0, 0.0]) if period is None else np.asarray(period, dtype=np.float64).reshape(3)
+    Om, Ga, pa, pb, a = (np.empty((B, n_el, 3), dt) for _ in range(5))
+    c = np.empty((B, n_el), dt)
+    k_strains_rows(L2, r2, float(ds), bool(periodic), d.astype(dt), Om, Ga, pa, pb, a, c)
+    v3 = batch + (n_el, 3)
+    return Strains(Om.reshape(v3), Ga.reshape(v3), pa.reshape(v3), pb.reshape(v3), a.reshape(v3), c.reshape(batch + (n_el,)))
 
 
 @njit(cache=True)
@@ -676,6 +778,10 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
     Ga0 = np.empty((N, 3), dtype=np.complex128)
     Om1 = np.empty((N, 3), dtype=np.complex128)
     Ga1 = np.empty((N, 3), dtype=np.complex128)
+    # scratch of k_strains_row (chords, axial vectors, c; a vector and om)
+    spa, spb, sa = np.empty((N, 3), np.complex128), np.empty((N, 3), np.complex128), np.empty((N, 3), np.complex128)
+    sc, sd, som = np.empty(N, np.complex128), np.empty(3, np.complex128), np.empty(3, np.complex128)
+    per = np.zeros(3)
     # the unperturbed level and cay(xi) are the same for every batch: compute them once
     Cxs = np.empty((N + 1, 3, 3), dtype=np.complex128)
     for j in range(N + 1):
@@ -690,9 +796,9 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
                 for m in range(3):
                     Ln[j, i, m] = Lam_n[j, i, m]
     if level == 0:
-        _k_strains(L1, r1, ds, Om1, Ga1)
+        k_strains_row(L1, r1, ds, False, per, Om1, Ga1, spa, spb, sa, sc, T, sd, som)
     else:
-        _k_strains(Ln, rn, ds, Om0, Ga0)
+        k_strains_row(Ln, rn, ds, False, per, Om0, Ga0, spa, spb, sa, sc, T, sd, som)
     for b in range(B):
         for j in range(N + 1):
             Cx = Cxs[j]
@@ -700,14 +806,14 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
             if level == 0:
                 _k_mm(Lam_n[j], C, Ln[j])
                 _k_mtm(C, Cx, T)  # cay(-sig) cay(xi) = cay(sig)^T cay(xi)
-                _k_cay_inv(T, xp[j])
+                k_cay_inv(T, xp[j])
                 for i in range(3):
                     rn[j, i] = r_n[j, i] + dr[b, j, i]
             else:
                 _k_mm(Lam_n[j], Cx, T)
                 _k_mm(T, C, L1[j])
                 _k_mm(Cx, C, T)
-                _k_cay_inv(T, xp[j])
+                k_cay_inv(T, xp[j])
                 for i in range(3):
                     r1[j, i] = r_1[j, i] + dr[b, j, i]
             kv = 0.0 + 0.0j
@@ -718,9 +824,9 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
                 kw += inertia[i] * xp[j, i] * xp[j, i]
             k[j] = 0.5 * rhoA * kv + 0.5 * kw / (h * h)
         if level == 0:
-            _k_strains(Ln, rn, ds, Om0, Ga0)
+            k_strains_row(Ln, rn, ds, False, per, Om0, Ga0, spa, spb, sa, sc, T, sd, som)
         else:
-            _k_strains(L1, r1, ds, Om1, Ga1)
+            k_strains_row(L1, r1, ds, False, per, Om1, Ga1, spa, spb, sa, sc, T, sd, som)
         for e in range(N):
             W = 0.0 + 0.0j
             gg = 0.0 + 0.0j
@@ -728,7 +834,7 @@ def _k_pieces(h, ds, Lam_n, r_n, xi, r_1, sig, dr, level, rhoA, inertia, Jd, Kd,
             for i in range(3):
                 om = 0.5 * (Om0[e, i] + Om1[e, i])
                 ga = 0.5 * (Ga0[e, i] + Ga1[e, i])
-                dg = ga - (1.0 if i == 0 else 0.0)
+                dg = ga - CHI[i]
                 W += 0.5 * Jd[i] * om * om + 0.5 * Kd[i] * dg * dg
                 gg += ga * ga
                 grav += g[i] * 0.5 * (rn[e, i] + r1[e, i] + rn[e + 1, i] + r1[e + 1, i]) * 0.5
@@ -762,12 +868,16 @@ def _k_dcinvT(w, v, s, out):
 
 
 @njit(cache=True, inline="always")
-def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, lev_lo, lev_hi, D1, D2, M, V):
-    """Discrete Lagrangian of one element (returned) and its exact gradients.
+def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, g0, lev_lo, lev_hi, D1, D2,
+              M, V):
+    """Discrete Lagrangian of one element and its exact gradients; returns (L_e, c), c = h ds mu_e the element's factor.
 
     ``D1`` (12) receives d/d(dr, sigma) of the level-n variations (level n+1 held), ``D2`` (12) those
     of level n+1 (level n held), layout [dr_a, sigma_a, dr_b, sigma_b].  The level n+1 frames are
     L0 cay(xi).  Only levels lev_lo <= level < lev_hi are computed ((0, 1): D1 only; (1, 2): D2 only).
+    ``g0`` = g . o when the four positions are given relative to a point o (0 for absolute positions): the weight's
+    potential rhoA g . rm reads the absolute positions, and with the paper's measure its gradient does too (through
+    mu, which weights it), so the element's value and gradients are those of the absolute positions in either case.
     All arrays share one scalar type (float64, or complex128 for complex steps);
     ``M`` (5, 3, 3) and ``V`` (16, 3) are scratch of that type.
     """
@@ -777,19 +887,14 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     _k_mm(L0a, Ca, L1a)
     _k_mm(L0b, Cb, L1b)
     om0, om1, pa0, pb0, pa1, pb1, dr0, dr1 = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
-    Gb, Ob, gG, gw, tmp, Ixa, Ixb = V[8], V[9], V[10], V[11], V[12], V[13], V[14]
-    _k_mtm(L0a, L0b, T)
-    _k_cay_inv(T, om0)
-    _k_mtm(L1a, L1b, T)
-    _k_cay_inv(T, om1)
+    Gb, Ob, gG, gw, tmp, Ixa, Ixb, tmb = V[8], V[9], V[10], V[11], V[12], V[13], V[14], V[15]
+    k_turn(L0a, L0b, T, om0)
+    k_turn(L1a, L1b, T, om1)
     for i in range(3):
         dr0[i] = r0b[i] - r0a[i]
         dr1[i] = r1b[i] - r1a[i]
-    for i in range(3):
-        pa0[i] = L0a[0, i] * dr0[0] + L0a[1, i] * dr0[1] + L0a[2, i] * dr0[2]
-        pb0[i] = L0b[0, i] * dr0[0] + L0b[1, i] * dr0[1] + L0b[2, i] * dr0[2]
-        pa1[i] = L1a[0, i] * dr1[0] + L1a[1, i] * dr1[1] + L1a[2, i] * dr1[2]
-        pb1[i] = L1b[0, i] * dr1[0] + L1b[1, i] * dr1[1] + L1b[2, i] * dr1[2]
+    k_chords(L0a, L0b, dr0, pa0, pb0)
+    k_chords(L1a, L1b, dr1, pa1, pb1)
     Gb[0] = 0.0  # (scratch is uninitialised: a zero of the scalar type)
     W = Gb[0]
     gg = Gb[0]
@@ -798,9 +903,9 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     kb = Gb[0]
     ih2 = 1.0 / (h * h)
     for i in range(3):
-        Gb[i] = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
+        Gb[i] = k_gamma_mid(pa0[i], pb0[i], pa1[i], pb1[i], ds)
         Ob[i] = 0.5 * (om0[i] + om1[i]) / ds
-        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        dg = Gb[i] - CHI[i]
         W += 0.5 * Jd[i] * Ob[i] * Ob[i] + 0.5 * Kd[i] * dg * dg
         gg += Gb[i] * Gb[i]
         grav += g[i] * 0.25 * (r0a[i] + r1a[i] + r0b[i] + r1b[i])
@@ -810,7 +915,7 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         Ixb[i] = inertia[i] * xib[i]
         ka += 0.5 * (rhoA * va * va + Ixa[i] * xia[i]) * ih2
         kb += 0.5 * (rhoA * vb * vb + Ixb[i] * xib[i]) * ih2
-    P = 0.5 * (ka + kb) - W + rhoA * grav
+    P = 0.5 * (ka + kb) - W + rhoA * (grav + g0)
     if paper:
         mu = np.sqrt(gg)
     else:
@@ -818,34 +923,29 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     c = h * ds * mu
     # gradients of E = h ds mu P with respect to each level's strains (the same for both levels)
     for i in range(3):
-        dg = Gb[i] - (1.0 if i == 0 else 0.0)
+        dg = Gb[i] - CHI[i]
         gG[i] = -0.5 * c * Kd[i] * dg
         if paper:
             gG[i] += h * ds * P * 0.5 * Gb[i] / mu
         gw[i] = -0.5 * h * mu * Jd[i] * Ob[i]  # d/d(omega^l), omega = ds Omega
     for lev in range(lev_lo, lev_hi):
         D = D1 if lev == 0 else D2
+        om = om0 if lev == 0 else om1
+        sgn = -1.0 if lev == 0 else 1.0
         La = L0a if lev == 0 else L1a
         Lb = L0b if lev == 0 else L1b
-        om = om0 if lev == 0 else om1
         pa = pa0 if lev == 0 else pa1
         pb = pb0 if lev == 0 else pb1
-        sgn = -1.0 if lev == 0 else 1.0
+        # the curvature's: sigma_a changes omega by -dcay^-1_om sigma, sigma_b by dcay^-1_{-om} sigma
+        _k_dcinvT(om, gw, 1.0, tmp)
+        _k_dcinvT(om, gw, -1.0, tmb)
+        # the strains' (k_strain_force), the weight rhoA g . rm / 2 per node (rm = (r0 + r1)/2) and the velocities'
         for i in range(3):
-            # Gamma = (La + Lb)^T (rb - ra) / (2 ds);  gravity rhoA g . rm / 2 per node, rm = (r0 + r1)/2
-            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
+            f, sa, sb = k_strain_force(La, Lb, pa, pb, gG, ds, i)
             D[i] = -f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1a[i] - r0a[i]) * ih2)
             D[6 + i] = f + c * (0.25 * rhoA * g[i] + sgn * 0.5 * rhoA * (r1b[i] - r0b[i]) * ih2)
-        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds);  domega = -dcay^-1_om sigma
-        _k_dcinvT(om, gw, 1.0, tmp)
-        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds) - tmp[0]
-        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds) - tmp[1]
-        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds) - tmp[2]
-        # sigma_b: domega = dcay^-1_{-om} sigma
-        _k_dcinvT(om, gw, -1.0, tmp)
-        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds) + tmp[0]
-        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds) + tmp[1]
-        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds) + tmp[2]
+            D[3 + i] = sa - tmp[i]
+            D[9 + i] = sb + tmb[i]
         # kinetic: level n changes xi by -dcay^-1_xi sigma, level n+1 by dcay^-1_{-xi} sigma
         _k_dcinvT(xia, Ixa, -sgn, tmp)
         for i in range(3):
@@ -853,33 +953,78 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
         _k_dcinvT(xib, Ixb, -sgn, tmp)
         for i in range(3):
             D[9 + i] += sgn * 0.5 * c * ih2 * tmp[i]
-    return c * P
+    return c * P, c
+
+
+@njit(cache=True, inline="always")
+def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2, M, V, e1, e2,
+                   value):
+    """The rod's D1 (level n) and D2 (level n+1) of L_d, (N+1, 6) each: the element kernels (:func:`k_element`) summed,
+    and the tip force's node piece; returns the value L_d.  Only the levels lev_lo <= level < lev_hi are written
+    ((0, 1): D1 alone, (1, 2): D2 alone; D1 and D2 may then be one array).  The one sum of the rod's element gradients:
+    RodPart.gradients, the stepper's rod term (varint.terms.step) and the compiled rod step (varint.schemes.rod_compiled).
+
+    ``dr``: the increments r^{n+1} - r^n (Lambda^n b in the step's chart).  Each element is evaluated in coordinates
+    centred on its first node: r_a^n = 0, r_b^n = r_b^n - r_a^n, r_a^{n+1} = dr_a, r_b^{n+1} = (r_b^n - r_a^n) + dr_b
+    (docs/theory.md §9, "Momenta to round-off": the gradients depend on positions only through differences; the
+    velocities are then the increments themselves, not differences of positions rounded to eps |r|, and Newton can
+    meet the momentum balances below that quantum).  The kernel forms node b's velocity as (r_b^{n+1} - r_b^n), which
+    rounds it to eps ds; its rounding error delta = dr_b - ((r_b^n - r_a^n + dr_b) - (r_b^n - r_a^n)) is exact in
+    floating point, and node b's kinetic rows get c rhoA delta / (2 h^2) (signed as the kernel's), so both nodes' kinetic
+    rows read their exact increments.  The weight reads the absolute positions (the paper's measure weights it, so its
+    gradient does too): the element kernel takes g . r_a^n with the centred positions (k_element's ``g0``), and the
+    value and gradients are those of the absolute positions, for either measure.  ``value``: also sum the value L_d
+    (else 0 is returned; the compiled rod step needs the gradients only).  Scratch: M (5, 3, 3), V (20, 3) (the
+    element kernel's rows 0-15, the element's positions 16-18), e1, e2 (12)."""
+    N = Lam_n.shape[0] - 1
+    ih2 = 1.0 / (h * h)
+    for j in range(N + 1):
+        for i in range(6):
+            if lev_lo == 0:
+                D1[j, i] = 0.0
+            if lev_hi == 2:
+                D2[j, i] = 0.0
+    za, rb0, rb1 = V[16], V[17], V[18]
+    for i in range(3):
+        za[i] = 0.0  # (the element kernel's scratch is rows 0-15)
+    L = 0.0
+    for e in range(N):
+        for i in range(3):
+            rb0[i] = r_n[e + 1, i] - r_n[e, i]
+            rb1[i] = rb0[i] + dr[e + 1, i]
+        # the weight's potential at the absolute positions: in the value, and through mu in the paper measure's gradient
+        g0 = g[0] * r_n[e, 0] + g[1] * r_n[e, 1] + g[2] * r_n[e, 2] if (value or paper) else 0.0
+        val, c = k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1],
+                           dr[e], rb1, g0, lev_lo, lev_hi, e1, e2, M, V)
+        if value:
+            L += val
+        cr = c * 0.5 * rhoA
+        for i in range(3):
+            k = cr * (dr[e + 1, i] - (rb1[i] - rb0[i])) * ih2  # node b's rounding error, exact in floating point
+            e1[6 + i] -= k
+            e2[6 + i] += k
+        for i in range(6):
+            if lev_lo == 0:
+                D1[e, i] += e1[i]
+                D1[e + 1, i] += e1[6 + i]
+            if lev_hi == 2:
+                D2[e, i] += e2[i]
+                D2[e + 1, i] += e2[6 + i]
+    for i in range(3):
+        if lev_lo == 0:
+            D1[N, i] += 0.5 * h * force[i]
+        if lev_hi == 2:
+            D2[N, i] += 0.5 * h * force[i]
+        if value:
+            L += 0.5 * h * force[i] * (r_n[N, i] + (r_n[N, i] + dr[N, i]))
+    return L
 
 
 @njit(cache=True)
-def _k_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, r_1, lev_lo, lev_hi, D1, D2):
-    """Sum of the element gradients (and the tip force's node piece) into D1, D2 (N+1, 6); returns L_d."""
-    N = Lam_n.shape[0] - 1
-    M = np.empty((5, 3, 3), Lam_n.dtype)
-    V = np.empty((16, 3), Lam_n.dtype)
-    e1 = np.empty(12, Lam_n.dtype)
-    e2 = np.empty(12, Lam_n.dtype)
-    D1[:] = 0.0
-    D2[:] = 0.0
-    L = 0.0
-    for e in range(N):
-        L += k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], r_n[e], r_n[e + 1],
-                        xi[e], xi[e + 1], r_1[e], r_1[e + 1], lev_lo, lev_hi, e1, e2, M, V)
-        for i in range(6):
-            D1[e, i] += e1[i]
-            D1[e + 1, i] += e1[6 + i]
-            D2[e, i] += e2[i]
-            D2[e + 1, i] += e2[6 + i]
-    for i in range(3):
-        D1[N, i] += 0.5 * h * force[i]
-        D2[N, i] += 0.5 * h * force[i]
-        L += 0.5 * h * force[i] * (r_n[N, i] + r_1[N, i])
-    return L
+def _k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
+    """:func:`k_rod_gradient` with its scratch (RodPart.gradients)."""
+    return k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2,
+                          np.empty((5, 3, 3)), np.empty((20, 3)), np.empty(12), np.empty(12), True)
 
 
 @njit(cache=True)
@@ -925,16 +1070,22 @@ def k_body_rows(Lam_n, e, col, out):
 
 
 @njit(cache=True, inline="always")
-def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
-    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
-    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
-    (both-level) blocks."""
+def k_load_element(Lam, r, e, La, Lb, ra, rb):
+    """Element e's frames and positions copied into La, Lb, ra, rb (the complex steps' scratch)."""
     for i in range(3):
         ra[i] = r[e, i]
         rb[i] = r[e + 1, i]
         for m in range(3):
             La[i, m] = Lam[e, i, m]
             Lb[i, m] = Lam[e + 1, i, m]
+
+
+@njit(cache=True, inline="always")
+def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
+    """Element e's configuration (frames La, Lb, positions ra, rb) with column k of z = (dr_a, sigma_a, dr_b,
+    sigma_b) moved by i eps: r -> r + i eps e_d, or Lambda -> Lambda cay(i eps e_d).  Shared by the static
+    (both-level) blocks."""
+    k_load_element(Lam, r, e, La, Lb, ra, rb)
     d = k % 3
     if k < 3:
         ra[d] += 1j * eps
@@ -951,9 +1102,33 @@ def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
         _k_mm(Lc, C, La if k < 6 else Lb)
 
 
+@njit(cache=True, inline="always")
+def k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, mask, eps, cs, col, out):
+    """Element e's Newton block of the step residual: out[:, k] = d(rotated D1 of element e)/d u_k (12 x 12), u = (b_a,
+    xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b, by complex step of the analytic gradient (``k_element`` in the chart of
+    ``k_chart_column``; the translational rows in the level-n body frames, ``k_body_rows``): exact to round-off.
+    Columns of unknowns off the ``mask`` (N+1, 6) are zero.  ``cs``: complex scratch (M, V, e1, e2, La, Lb, ra, rb, xa,
+    xb, qa, qb; ``_element_scratch`` and six 3-vectors), ``col`` (12) real scratch.  The one block of the stepper's
+    Jacobian (``_k_step_blocks``) and of the compiled rod step's exact band Jacobian (varint.schemes.rod_compiled)."""
+    M, V, e1, e2, La, Lb = cs[0], cs[1], cs[2], cs[3], cs[4], cs[5]
+    ra, rb, xa, xb, qa, qb = cs[6], cs[7], cs[8], cs[9], cs[10], cs[11]
+    inv = 1.0 / eps
+    k_load_element(Lam_n, r_n, e, La, Lb, ra, rb)
+    for k in range(12):
+        if not mask[e + k // 6, k % 6]:
+            for i in range(12):
+                out[i, k] = 0.0
+            continue
+        k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
+        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0.0, 0, 1, e1, e2, M, V)
+        for i in range(12):
+            col[i] = e1[i].imag * inv
+        k_body_rows(Lam_n, e, col, out[:, k])
+
+
 @njit(cache=True)
 def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, mask, eps, blocks):
-    """Newton blocks of the step residual: blocks[e, :, k] = d(rotated D1 of element e)/d u_k.
+    """Newton blocks of the step residual: blocks[e] = :func:`k_step_block` of element e.
 
     u = (b_a, xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b; the translational rows are in the level-n body
     frame of their node (as the stepper's residual rows: varint.terms.step.RodElements).  By complex step of the analytic
@@ -962,31 +1137,11 @@ def _k_step_blocks(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, 
     N = Lam_n.shape[0] - 1
     c = np.complex128
     M, V, e1, e2, La, Lb = _element_scratch()
-    ra = np.empty(3, c)
-    rb = np.empty(3, c)
-    xa = np.empty(3, c)
-    xb = np.empty(3, c)
-    qa = np.empty(3, c)
-    qb = np.empty(3, c)
+    cs = (M, V, e1, e2, La, Lb, np.empty(3, c), np.empty(3, c), np.empty(3, c), np.empty(3, c), np.empty(3, c),
+          np.empty(3, c))
     col = np.empty(12)
-    inv = 1.0 / eps
     for e in range(N):
-        for i in range(3):
-            ra[i] = r_n[e, i]
-            rb[i] = r_n[e + 1, i]
-            for m in range(3):
-                La[i, m] = Lam_n[e, i, m]
-                Lb[i, m] = Lam_n[e + 1, i, m]
-        for k in range(12):
-            if not mask[e + k // 6, k % 6]:
-                for i in range(12):
-                    blocks[e, i, k] = 0.0
-                continue
-            k_chart_column(Lam_n, xi, r_1, e, k, eps, xa, xb, qa, qb)
-            k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, xa, xb, qa, qb, 0, 1, e1, e2, M, V)
-            for i in range(12):
-                col[i] = e1[i].imag * inv
-            k_body_rows(Lam_n, e, col, blocks[e, :, k])
+        k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, mask, eps, cs, col, blocks[e])
 
 
 @njit(cache=True)
@@ -1011,25 +1166,26 @@ def _k_static_blocks(ds, rhoA, inertia, Jd, Kd, g, paper, Lam, r, mask, eps, blo
                     blocks[e, i, k] = 0.0
                 continue
             _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w)
-            k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0, 2, e1, e2, M, V)
+            k_element(1.0, ds, rhoA, inertia, Jd, Kd, g, paper, La, Lb, ra, rb, zero, zero, ra, rb, 0.0, 0, 2, e1, e2, M, V)
             for i in range(12):
                 blocks[e, i, k] = (e1[i].imag + e2[i].imag) * inv
 
 
 @njit(cache=True, inline="always", error_model="numpy")
 def k_measure(e, ds, Lam_n, r_n, xi, dr, A, B, C):
-    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart, Gamma^l = (La^l + Lb^l)^T (rb^l -
-    ra^l) / (2 ds) (the element kernel's).  A, B, C: (3, 3) scratch."""
+    """The paper's measure mu_e = |Gamma_bar_e| of element e at the step's chart (the level-n frames Lam_n and
+    positions r_n, the turns xi and increments dr): the element kernel's own (k_element's midpoint strain of the
+    centred element of k_rod_gradient, the same arithmetic to the bit).  A, B, C: (3, 3) scratch."""
     k_cay(xi[e, 0], xi[e, 1], xi[e, 2], C)
     _k_mm(Lam_n[e], C, A)
     k_cay(xi[e + 1, 0], xi[e + 1, 1], xi[e + 1, 2], C)
     _k_mm(Lam_n[e + 1], C, B)
+    d0, d1 = C[0], C[1]
+    for k in range(3):
+        d0[k] = r_n[e + 1, k] - r_n[e, k]
+        d1[k] = (d0[k] + dr[e + 1, k]) - dr[e, k]
     gg = 0.0
     for i in range(3):
-        gi = 0.0
-        for k in range(3):
-            d0 = r_n[e + 1, k] - r_n[e, k]
-            d1 = d0 + dr[e + 1, k] - dr[e, k]
-            gi += (Lam_n[e, k, i] + Lam_n[e + 1, k, i]) * d0 + (A[k, i] + B[k, i]) * d1
-        gg += (gi / (4.0 * ds)) ** 2
+        gi = k_gamma_mid(k_body(Lam_n[e], d0, i), k_body(Lam_n[e + 1], d0, i), k_body(A, d1, i), k_body(B, d1, i), ds)
+        gg += gi * gi
     return math.sqrt(gg)

@@ -27,7 +27,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .rod import k_body_rows, k_cay, k_chart_column, _k_config_column, _k_mm
+from ..lattice.lie import k_cay
+from .rod import (CHI, k_body_rows, k_chart_column, k_chords, k_gamma_mid, k_load_element, k_strain_gradients, _k_config_column,
+                  _k_mm)
 
 __all__ = ["constraint_step", "level_constraint_step", "constraint_blocks", "element_strain_residual", "constraint_jacobian", "constraint_static"]
 
@@ -50,16 +52,12 @@ def _k_constraint_element(h, ds, L0a, L0b, r0a, r0b, L1a, L1b, r1a, r1b, lam, nc
     for i in range(3):
         d0[i] = r0b[i] - r0a[i]
         d1[i] = r1b[i] - r1a[i]
-    for i in range(3):
-        pa0[i] = L0a[0, i] * d0[0] + L0a[1, i] * d0[1] + L0a[2, i] * d0[2]
-        pb0[i] = L0b[0, i] * d0[0] + L0b[1, i] * d0[1] + L0b[2, i] * d0[2]
-        pa1[i] = L1a[0, i] * d1[0] + L1a[1, i] * d1[1] + L1a[2, i] * d1[2]
-        pb1[i] = L1b[0, i] * d1[0] + L1b[1, i] * d1[1] + L1b[2, i] * d1[2]
+    k_chords(L0a, L0b, d0, pa0, pb0)
+    k_chords(L1a, L1b, d1, pa1, pb1)
     c = h * ds
     val = 0.0 * lam[0]
     for i in range(3):
-        Gb = 0.25 * (pa0[i] + pb0[i] + pa1[i] + pb1[i]) / ds
-        g = Gb - (1.0 if i == 0 else 0.0)
+        g = k_gamma_mid(pa0[i], pb0[i], pa1[i], pb1[i], ds) - CHI[i]
         if i < ncomp:
             val = val - c * lam[i] * g
             Dl[i] = -c * g
@@ -67,24 +65,7 @@ def _k_constraint_element(h, ds, L0a, L0b, r0a, r0b, L1a, L1b, r1a, r1b, lam, nc
         else:
             Dl[i] = 0.0 * g
             gG[i] = 0.0 * g
-    for lev in range(lev_lo, lev_hi):
-        D = D1 if lev == 0 else D2
-        La = L0a if lev == 0 else L1a
-        Lb = L0b if lev == 0 else L1b
-        pa = pa0 if lev == 0 else pa1
-        pb = pb0 if lev == 0 else pb1
-        for i in range(3):
-            # Gamma = (La + Lb)^T (rb - ra) / (2 ds)
-            f = ((La[i, 0] + Lb[i, 0]) * gG[0] + (La[i, 1] + Lb[i, 1]) * gG[1] + (La[i, 2] + Lb[i, 2]) * gG[2]) / (2.0 * ds)
-            D[i] = -f
-            D[6 + i] = f
-        # sigma_a: dGamma = (pa x sigma)/(2 ds) -> gG x pa / (2 ds); likewise sigma_b with pb
-        D[3] = (gG[1] * pa[2] - gG[2] * pa[1]) / (2.0 * ds)
-        D[4] = (gG[2] * pa[0] - gG[0] * pa[2]) / (2.0 * ds)
-        D[5] = (gG[0] * pa[1] - gG[1] * pa[0]) / (2.0 * ds)
-        D[9] = (gG[1] * pb[2] - gG[2] * pb[1]) / (2.0 * ds)
-        D[10] = (gG[2] * pb[0] - gG[0] * pb[2]) / (2.0 * ds)
-        D[11] = (gG[0] * pb[1] - gG[1] * pb[0]) / (2.0 * ds)
+    k_strain_gradients(L0a, L0b, L1a, L1b, pa0, pb0, pa1, pb1, gG, ds, lev_lo, lev_hi, D1, D2)
     return val
 
 
@@ -112,6 +93,13 @@ def _k_constraint_step(h, ds, Lam_n, r_n, Lam_1, r_1, lam, ncomp, lev_lo, lev_hi
 
 
 @njit(cache=True)
+def _constraint_scratch():
+    """Complex work arrays of the constraint's complex-step blocks: (M (6, 3, 3), V (8, 3), e1 (12), e2 (12))."""
+    c = np.complex128
+    return np.empty((6, 3, 3), c), np.empty((8, 3), c), np.empty(12, c), np.empty(12, c)
+
+
+@njit(cache=True)
 def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_levels, blocks, lam_blocks, row_blocks):
     """Newton blocks of one element e:
 
@@ -125,33 +113,15 @@ def _k_constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps, at_l
     D_lam of the next step's term (``row_blocks`` from level n+1 alone).
     """
     N = Lam_n.shape[0] - 1
-    c = np.complex128
-    La0 = np.empty((3, 3), c)
-    Lb0 = np.empty((3, 3), c)
-    La1 = np.empty((3, 3), c)
-    Lb1 = np.empty((3, 3), c)
-    Ca = np.empty((3, 3), c)
-    Cb = np.empty((3, 3), c)
-    ra0 = np.empty(3, c)
-    rb0 = np.empty(3, c)
-    qa = np.empty(3, c)
-    qb = np.empty(3, c)
-    xa = np.empty(3, c)
-    xb = np.empty(3, c)
-    lc = np.empty(3, c)
-    e1 = np.empty(12, c)
-    e2 = np.empty(12, c)
-    dl = np.empty(3, c)
+    M, V, e1, e2 = _constraint_scratch()
+    La0, Lb0, La1, Lb1, Ca, Cb = M[0], M[1], M[2], M[3], M[4], M[5]
+    ra0, rb0, qa, qb, xa, xb, lc, dl = V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7]
     col = np.empty(12)
     inv = 1.0 / eps
     for e in range(N):
+        k_load_element(Lam_n, r_n, e, La0, Lb0, ra0, rb0)
         for i in range(3):
-            ra0[i] = r_n[e, i]
-            rb0[i] = r_n[e + 1, i]
             lc[i] = lam[e, i]
-            for m in range(3):
-                La0[i, m] = Lam_n[e, i, m]
-                Lb0[i, m] = Lam_n[e + 1, i, m]
         for k in range(12):
             if not mask[e + k // 6, k % 6]:
                 for i in range(12):
@@ -239,7 +209,7 @@ def constraint_blocks(h, ds, Lam_n, r_n, xi, r_1, lam, ncomp, mask, eps=1e-30, a
 def element_strain_residual(rod, Lam, r):
     """max |Gamma_e - chi| over the elements at one level (the constraint's monitor; strains of RodPart.strains)."""
     _, Ga = rod.strains(Lam, r)
-    return float(np.max(np.abs(Ga - np.array([1.0, 0.0, 0.0])))) if len(Ga) else 0.0
+    return float(np.max(np.abs(Ga - CHI))) if len(Ga) else 0.0
 
 
 def constraint_jacobian(Lam, r, ds, ncomp, mask):
@@ -279,18 +249,9 @@ def _k_constraint_static_blocks(ds, Lam, r, lam, ncomp, mask, eps, blocks):
     of the constraint force -ds (dGamma/dq)^T lam, by complex step of its analytic gradient.  Columns off the
     ``mask`` are left zero."""
     N = Lam.shape[0] - 1
-    c = np.complex128
-    La = np.empty((3, 3), c)
-    Lb = np.empty((3, 3), c)
-    Lc = np.empty((3, 3), c)
-    C = np.empty((3, 3), c)
-    ra = np.empty(3, c)
-    rb = np.empty(3, c)
-    lc = np.empty(3, c)
-    w = np.zeros(3, c)
-    e1 = np.empty(12, c)
-    e2 = np.empty(12, c)
-    dl = np.empty(3, c)
+    M, V, e1, e2 = _constraint_scratch()
+    La, Lb, Lc, C = M[0], M[1], M[2], M[3]
+    ra, rb, lc, w, dl = V[0], V[1], V[2], V[3], V[4]
     inv = 1.0 / eps
     for e in range(N):
         for i in range(3):
@@ -313,7 +274,7 @@ def constraint_static(rod, Lam, r, lam):
     stiffness of the internal forces lam."""
     N, ncomp, mask = rod.N, rod.ncomp, rod.mask
     _, Ga = rod.strains(Lam, r)
-    c = (Ga - np.array([1.0, 0.0, 0.0]))[:, :ncomp].ravel()
+    c = (Ga - CHI)[:, :ncomp].ravel()
     G = constraint_jacobian(Lam, r, rod.ds, ncomp, mask)
     _, D1, D2, _ = constraint_step(1.0, rod.ds, Lam, r, Lam, r, lam, ncomp, (0, 2))
     F = (D1 + D2)[mask]

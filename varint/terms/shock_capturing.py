@@ -47,7 +47,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from .forces import Declaration, Force
-from ..lattice.parcels import k_parcel_gradient, k_parcel_hessian, parcel_derivatives, parcel_volumes
+from ..lattice.parcels import k_locate, k_parcel_gradient, k_parcel_hessian, parcel_derivatives, parcel_volumes
 
 __all__ = ["ShockCapturing", "SwellingShockCapturing", "make_shock_capturing", "avf_volume_gradients",
            "mean_value_pressure", "viscous_pressure", "viscous_pressure_q", "heated_entropy"]
@@ -357,16 +357,6 @@ _GAUSS_T = np.array([0.5 - 0.5 * math.sqrt(0.6), 0.5, 0.5 + 0.5 * math.sqrt(0.6)
 _GAUSS_W = np.array([5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0])
 
 
-@njit(cache=True, inline="always")
-def _elem(x, ds, N, periodic):
-    """Element (unwrapped when periodic, clamped to 0..N-1 when closed) and local coordinate of x."""
-    u = x / ds
-    e = math.floor(u)
-    if not periodic:
-        e = min(max(e, 0), N - 1)
-    return e, u - e
-
-
 @njit(cache=True)
 def _parcel_valid(a0, a1, b0, b1, ds, N, periodic):
     """Both levels of parcel (a, b) finite and in order, and (periodic) within two periods: then every point of
@@ -431,8 +421,8 @@ def _avf_volume(s0, s1, R0, R1, ds, periodic, nlab, X, want_H, gT, gW,
                         hval[ph] = np.nan
                         ph += 1
             continue
-        lo = _elem(min(a0, a1), ds, N, periodic)[0]
-        hi = _elem(max(b0, b1), ds, N, periodic)[0]
+        lo = k_locate(min(a0, a1), ds, nR, periodic)[0]
+        hi = k_locate(max(b0, b1), ds, nR, periodic)[0]
         nn = hi - lo + 2  # local nodes lo .. hi + 1
         nloc = 2 + nn
         if Rl.shape[0] < nn:
@@ -463,8 +453,8 @@ def _avf_volume(s0, s1, R0, R1, ds, periodic, nlab, X, want_H, gT, gW,
                     j = lo + i
                     jj = j % nR if periodic else j
                     Rl[i] = R0[jj] + tau * (R1[jj] - R0[jj])
-                ea, ta = _elem(a0 + tau * (a1 - a0), ds, N, periodic)
-                eb, tb = _elem(b0 + tau * (b1 - b0), ds, N, periodic)
+                ea, ta, _ = k_locate(a0 + tau * (a1 - a0), ds, nR, periodic)
+                eb, tb, _ = k_locate(b0 + tau * (b1 - b0), ds, nR, periodic)
                 m = 2 + eb - ea + 2
                 gl = gt[:m]
                 r0, r1, ra0, rb0, ra1, rb1 = k_parcel_gradient(dummy, Rl, ds, False, k, ea - lo, ta, eb - lo, tb, gl)
@@ -522,8 +512,8 @@ def _avf_sizes(s0, s1, ds, nR, periodic):
             ng += 4
             nh += 16
             continue
-        lo = _elem(min(s0[k], s1[k]), ds, N, periodic)[0]
-        hi = _elem(max(s0[k + 1], s1[k + 1]), ds, N, periodic)[0]
+        lo = k_locate(min(s0[k], s1[k]), ds, nR, periodic)[0]
+        hi = k_locate(max(s0[k + 1], s1[k + 1]), ds, nR, periodic)[0]
         nloc = 2 + hi - lo + 2
         ng += nloc
         nh += nloc * nloc

@@ -23,9 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-from ..lattice.centreline import k_centreline_weights
-from .rod import k_element
-from .rod import k_measure
+from ..lattice.centreline import k_centreline_weights, k_stencil_point
 
 __all__ = ["StepPoint", "Derivatives", "TubeKinetic", "TubeMidpointPotential", "TubeTrapezoidalPotential", "RodElements",
            "RodConstraint", "CoupledFluid"]
@@ -69,72 +67,13 @@ def _embed(block, offset, nz):
     return sp.csc_matrix((block.data, (block.row + offset, block.col + offset)), shape=(nz, nz))
 
 
-@njit(cache=True)
-def _k_rod_gradient_centred(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2):
-    """D1, D2 (N+1, 6) of the rod's element kernels (:func:`varint.terms.rod.k_element`, as ``varint.terms.rod._k_gradient``) with
-    each element evaluated in coordinates centred on its first node: r_a^n = 0, r_b^n = r_b^n - r_a^n, r_a^{n+1} = dr_a,
-    r_b^{n+1} = (r_b^n - r_a^n) + dr_b, dr the increments Lambda^n b (docs/theory.md §9, "Momenta to round-off": the
-    gradients depend on positions only through differences; the velocities are then the increments themselves, not
-    differences of positions rounded to eps |r|, and Newton can meet the momentum balances below that quantum).  The
-    kernel forms node b's velocity as (r_b^{n+1} - r_b^n), which rounds it to eps ds; its rounding error
-    delta = dr_b - ((r_b^n - r_a^n + dr_b) - (r_b^n - r_a^n)) is exact in floating point, and node b's kinetic rows
-    get c rhoA delta / (2 h^2) (signed as the kernel's), so both nodes' kinetic rows read their exact increments.
-    Returns nothing (the value L_d, which reads the absolute positions through gravity, is ``_k_gradient``'s)."""
-    N = Lam_n.shape[0] - 1
-    M = np.empty((5, 3, 3))
-    V = np.empty((16, 3))
-    e1 = np.empty(12)
-    e2 = np.empty(12)
-    za = np.zeros(3)
-    rb0 = np.empty(3)
-    rb1 = np.empty(3)
-    dlt = np.empty(3)
-    ih2 = 1.0 / (h * h)
-    D1[:] = 0.0
-    D2[:] = 0.0
-    for e in range(N):
-        for i in range(3):
-            rb0[i] = r_n[e + 1, i] - r_n[e, i]
-            rb1[i] = rb0[i] + dr[e + 1, i]
-            dlt[i] = dr[e + 1, i] - (rb1[i] - rb0[i])
-        k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n[e], Lam_n[e + 1], za, rb0, xi[e], xi[e + 1], dr[e],
-                   rb1, lev_lo, lev_hi, e1, e2, M, V)
-        c = h * ds * (k_measure(e, ds, Lam_n, r_n, xi, dr, M[0], M[1], M[2]) if paper else 1.0)
-        for i in range(3):
-            k = c * 0.5 * rhoA * dlt[i] * ih2
-            e1[6 + i] -= k
-            e2[6 + i] += k
-        for i in range(6):
-            D1[e, i] += e1[i]
-            D1[e + 1, i] += e1[6 + i]
-            D2[e, i] += e2[i]
-            D2[e + 1, i] += e2[6 + i]
-    for i in range(3):
-        D1[N, i] += 0.5 * h * force[i]
-        D2[N, i] += 0.5 * h * force[i]
-
-
 def _rod_derivative(rod, pt, level, elastic=True):
     """The rod's D1 (level 0) or D2 (level 1) at the step point, from its increments ``pt.dr`` when the point has them
-    (:func:`_k_rod_gradient_centred`), else ``rod.derivative``.  ``elastic=False``: the kinetic, weight and tip-force
-    pieces only (the stiffnesses set to zero), the closed-form momentum balances' rod part."""
-    if pt.dr is None and elastic:
-        return rod.derivative(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, level=level)
-    _, rhoA, inertia, J, K, g, force = rod._consts()
-    if not elastic:
-        J, K = np.zeros(3), np.zeros(3)
-    dr = pt.dr if pt.dr is not None else pt.r_1 - pt.r_n
-    D1 = np.empty((rod.N + 1, 6))
-    D2 = np.empty((rod.N + 1, 6))
-    f8 = np.float64
-    try:
-        _k_rod_gradient_centred(float(pt.h), rod.ds, rhoA, inertia, J, K, g, force, rod.paper_measure,
-                                np.ascontiguousarray(pt.Lam_n, dtype=f8), np.ascontiguousarray(pt.r_n, dtype=f8),
-                                np.ascontiguousarray(pt.xi, dtype=f8), np.ascontiguousarray(dr, dtype=f8), level, level + 1,
-                                D1, D2)
-    except ZeroDivisionError:  # a Cayley chart at 180 degrees (as RodPart.gradients)
-        return np.full((rod.N + 1, 6), np.nan)
-    return D1 if level == 0 else D2
+    (each element centred on its first node with its exact increments: varint.terms.rod.k_rod_gradient), else from
+    r_1 - r_n.  ``elastic=False``: the kinetic, weight and tip-force pieces only (the stiffnesses set to zero), the
+    closed-form momentum balances' rod part."""
+    return rod.gradients(pt.h, pt.Lam_n, pt.r_n, pt.xi, pt.r_1, levels=(level, level + 1), dr=pt.dr,
+                         elastic=elastic)[level]
 
 
 @njit(cache=True)
@@ -154,24 +93,20 @@ def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, r
     k_centreline_weights(s1, n, ds, periodic, nodes1, N1, dN1, d2N)
     D = np.empty(3)
     c = np.empty(3)
+    r1 = r0 + dr
     for q in range(m):
         e0 = int(math.floor(s0[q] / ds))
         e1 = int(math.floor(s1[q] / ds))
-        w = (e0 // n) if periodic else 0
         for d in range(3):
-            c[d] = r0[nodes0[q, 1], d] + w * period[d]
+            c[d] = k_stencil_point(r0, nodes0[q, 1], e0, 1, n, periodic, period, d)
         for d in range(3):
             inc = 0.0
             b1 = 0.0
             b0 = 0.0
             for i in range(4):
-                a1 = nodes1[q, i]
-                a0 = nodes0[q, i]
-                w1 = ((e1 - 1 + i) // n) if periodic else 0
-                w0 = ((e0 - 1 + i) // n) if periodic else 0
-                inc += N1[q, i] * dr[a1, d]
-                b1 += N1[q, i] * ((r0[a1, d] + w1 * period[d]) - c[d])
-                b0 += N0[q, i] * ((r0[a0, d] + w0 * period[d]) - c[d])
+                inc += N1[q, i] * dr[nodes1[q, i], d]
+                b1 += N1[q, i] * (k_stencil_point(r0, nodes1[q, i], e1, i, n, periodic, period, d) - c[d])
+                b0 += N0[q, i] * (k_stencil_point(r0, nodes0[q, i], e0, i, n, periodic, period, d) - c[d])
             D[d] = inc + (b1 - b0)
         cm = mbar[q] / h
         x0 = 0.0
@@ -180,14 +115,10 @@ def _k_kinetic_increments(s0, s1, r0, dr, mbar, h, ds, periodic, period, rod0, r
             t0 = 0.0
             t1 = 0.0
             for i in range(4):
-                a1 = nodes1[q, i]
-                a0 = nodes0[q, i]
-                w1 = ((e1 - 1 + i) // n) if periodic else 0
-                w0 = ((e0 - 1 + i) // n) if periodic else 0
-                t0 += dN0[q, i] * (r0[a0, d] + w0 * period[d])
-                t1 += dN1[q, i] * ((r0[a1, d] + dr[a1, d]) + w1 * period[d])
-                rod0[a0, d] -= cm * N0[q, i] * D[d]
-                rod1[a1, d] += cm * N1[q, i] * D[d]
+                t0 += dN0[q, i] * k_stencil_point(r0, nodes0[q, i], e0, i, n, periodic, period, d)
+                t1 += dN1[q, i] * k_stencil_point(r1, nodes1[q, i], e1, i, n, periodic, period, d)
+                rod0[nodes0[q, i], d] -= cm * N0[q, i] * D[d]
+                rod1[nodes1[q, i], d] += cm * N1[q, i] * D[d]
             x0 += D[d] * t0
             x1 += D[d] * t1
         g0[q] = -cm * x0
