@@ -76,6 +76,16 @@ class Stepper:
         """``(next state, StepReport)`` from ``state`` (normally the current level)."""
         raise NotImplementedError
 
+    def adopt(self, st):
+        """Make ``st`` the current level: a checkpoint written before the rod's floating origin existed gains it
+        (:meth:`varint.model.model.Model.upgrade_level`), and the model takes the level's evolving data."""
+        st.q = self.model.upgrade_level(st.q)
+        if st.q_prev is not None:
+            st.q_prev = self.model.upgrade_level(st.q_prev)
+        if st.data:
+            self.model.set_state_data(st.data)
+        self._state = st
+
     def monitors(self):
         """Invariants and energies of the current level (a dict of floats and arrays)."""
         raise NotImplementedError

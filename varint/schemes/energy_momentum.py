@@ -99,12 +99,7 @@ class EnergyMomentumStepper(LevelMonitors, Stepper):
 
     @state.setter
     def state(self, st):
-        st.q = self.model.upgrade_level(st.q)
-        if st.q_prev is not None:
-            st.q_prev = self.model.upgrade_level(st.q_prev)
-        if st.data:
-            self.model.set_state_data(st.data)
-        self._state = st
+        self.adopt(st)
 
     @property
     def open(self):

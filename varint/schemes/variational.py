@@ -17,7 +17,7 @@ from ..terms.open_ends import open_end_limits
 from ..terms.rod import POLISH_ROD, RATE_REFRESH_ROD, XI_MAX
 from . import rod_compiled
 from .base import MAX_HALVINGS, Scheme, Stepper, StepReport
-from .limits import chart_limit_error
+from .limits import chart_limit_error, with_scheme_hint
 from .midpoint import make_scheme
 from .monitors import LevelMonitors
 from .newton import RATE_REFRESH, newton, newton_damped
@@ -120,13 +120,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
 
     @state.setter
     def state(self, st):
-        # a checkpoint written before the rod's floating origin existed gains it (varint.model.model.Model.upgrade_level)
-        st.q = self.model.upgrade_level(st.q)
-        if st.q_prev is not None:
-            st.q_prev = self.model.upgrade_level(st.q_prev)
-        if st.data:
-            self.model.set_state_data(st.data)
-        self._state = st
+        self.adopt(st)
         if self.open and self.model.tube.lattice_version != self._built_version:
             self._rebuild()
 
@@ -314,7 +308,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             return self._step_at_h()
         except SolverError as exc:
             if not self.adaptive or self.depth >= MAX_HALVINGS:
-                raise
+                raise (exc if self.depth else with_scheme_hint(self.model, exc)) from None
             failure = exc
         self.state = start  # (the model's evolving data back to the level: a heating force may have run)
         half = self._half_stepper()
@@ -324,7 +318,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             end, r2 = half.step(mid)
         except SolverError:
             self.state = start
-            raise failure from None
+            raise (failure if self.depth else with_scheme_hint(self.model, failure)) from None
         new = self._rescaled(end, 2.0, self.h)
         new.n, new.t = start.n + 1, (start.n + 1) * self.h
         self.state = new  # (the setter rebuilds this step for a lattice the half steps changed: open ends)
