@@ -68,7 +68,7 @@ def test_halving_goes_down_to_an_eighth_then_the_failure_stops_the_run_at_its_le
     sim.step()
     level = sim.state.copy()
     _fail_at(sim.stepper, {1, 2}, [h, h / 2, h / 4, h / 8])
-    with pytest.raises(SolverError, match="induced failure at h = 0.01$"):
+    with pytest.raises(SolverError, match="induced failure at h = 0.01; time.scheme = 'energy-momentum' may run it"):
         sim.step()
     assert sim.state.n == 1 and np.array_equal(sim.state.q, level.q) and np.array_equal(sim.state.p, level.p)
 
@@ -88,3 +88,25 @@ def test_the_scene_key_is_a_boolean():
     d["time"]["adaptive"] = "yes"
     with pytest.raises(Exception, match="time.adaptive: must be true or false"):
         parse_scene(to_toml(d))
+
+
+
+def test_a_failure_left_after_step_control_names_the_energy_momentum_scheme_only_where_it_covers_the_scene(
+        restore_step):
+    """docs/validation.md "Long runs": the midpoint loses the water-filled hose where the energy-momentum step runs
+    it.  A failure that step control cannot recover (``time.adaptive = false`` here) names that scheme when it
+    covers the scene (a closed gas tube in a dynamic wall), and leaves the message as it was when it does not (in a
+    quasistatic wall, docs/theory.md §12d)."""
+    from varint.schemes import em_rod
+
+    for wall, named in (("dynamic", True), ("quasistatic", False)):
+        d = gas_scene(nodes=9, parcels=8, h=1e-5)
+        d["time"]["adaptive"] = False
+        d["wall"]["model"] = wall
+        sim = Simulation(build_model(scene_of(d)))
+        assert (em_rod.supports(sim.model) is None) == named
+        _fail_at(sim.stepper, {0}, [1e-5])
+        with pytest.raises(SolverError) as info:
+            sim.step()
+        assert str(info.value).startswith("induced failure at h = 1e-05")
+        assert ("time.scheme = 'energy-momentum'" in str(info.value)) == named, str(info.value)

@@ -8,7 +8,7 @@ import math
 from ..errors import SolverError
 from . import em_rod
 
-__all__ = ["chart_limit_error"]
+__all__ = ["chart_limit_error", "with_scheme_hint"]
 
 
 def chart_limit_error(model, n, h, node, turn):
@@ -19,3 +19,16 @@ def chart_limit_error(model, n, h, node, turn):
             "(docs/theory.md §12a)" if em_rod.supports(model) is None else "; reduce time.step")
     return SolverError(f"step {n} (t = {n * h:.6g} s): node {node} turns by {deg:.0f} degrees in one step (more than "
                        f"90){hint}", step=n, time=n * h)
+
+
+def with_scheme_hint(model, exc):
+    """``exc`` (a SolverError of the midpoint or trapezoidal step that step control could not recover) with the
+    energy-momentum scheme named where it covers the model: its discrete gradients keep the energy to the solver's
+    tolerance, so a run that the midpoint loses to an unresolved fast mode often runs with it (docs/theory.md §12c;
+    ``scripts/water_hose_long_run.py``: the water-filled hose fails at 2.4 s with the midpoint, runs 20 s with it)."""
+    text = str(exc)
+    if "energy-momentum" in text or em_rod.supports(model) is not None:
+        return exc
+    return SolverError(f"{text}; time.scheme = 'energy-momentum' may run it (its energy is exact to the solver's "
+                       "tolerance, docs/theory.md §12)", step=exc.step, time=exc.time, residual=exc.residual,
+                       rate=exc.rate)
