@@ -179,6 +179,7 @@ def test_the_hose_that_the_shearable_rod_cannot_step_runs_with_the_constraint(wi
     dies (a node turning by more than 90 degrees in one step, after the energy grew); the constrained rod
     runs the same 700 steps with its energy bounded."""
     text = (EXAMPLES / "water_filled_hose.toml").read_text().replace("step = 1.0e-3", "step = 2.0e-3")
+    text = text.replace('scheme = "energy-momentum"', 'scheme = "midpoint"')
     if not with_water:
         a, b = text.index("[wall]"), text.index("[environment]")
         text = text[:a] + text[b:]
