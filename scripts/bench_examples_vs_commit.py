@@ -3,8 +3,8 @@
 The earlier commit is checked out into a temporary git worktree; one worker process per tree (each with its own
 package and numba cache, one BLAS thread) builds every example's Simulation and warms it up (compilation, the first
 Jacobians); then the workers step the examples in alternating blocks of ``--steps`` steps, so both trees see the same
-machine load, and each block's CPU time (``time.process_time`` in the worker) is recorded.  The table gives the
-cheapest block per step of each tree and their ratio (now / then; > 1: slower now).  Pass ``--rev`` the commit to
+machine load, and each block's CPU time (``time.process_time`` in the worker) is recorded.  Both trees step the
+earlier commit's example files (the same scenes).  The table gives the cheapest block per step of each tree and their ratio (now / then; > 1: slower now).  Pass ``--rev`` the commit to
 compare with (default: cba3494, the last commit before the package was laid out in layers and the schemes became
 registered objects).
 
@@ -73,17 +73,19 @@ def main():
     ap.add_argument("--warm", type=int, default=3, help="steps before timing (default: %(default)s)")
     ap.add_argument("--examples", default="", help="comma-separated example names (default: all)")
     args = ap.parse_args()
-    names = [p.stem for p in sorted((ROOT / "examples").glob("*.toml"))]
-    if args.examples:
-        names = [n for n in names if n in args.examples.split(",")]
     old = Path(tempfile.mkdtemp(prefix="varint_then_")) / "tree"
     subprocess.run(["git", "worktree", "add", "--detach", str(old), args.rev], cwd=ROOT, check=True,
                    capture_output=True)
+    # both trees step the earlier commit's example files, so that the same scene is timed (an example whose file
+    # changed since, e.g. a scheme chosen in it, would otherwise compare two different runs)
+    names = [p.stem for p in sorted((old / "examples").glob("*.toml"))]
+    if args.examples:
+        names = [n for n in names if n in args.examples.split(",")]
     procs = {"now": worker(ROOT), "then": worker(old)}
     try:
         print(f"| example | h (s) | now ms/step | at {args.rev} ms/step | now / then |\n|---|---|---|---|---|", flush=True)
         for name in names:
-            path = ROOT / "examples" / f"{name}.toml"
+            path = old / "examples" / f"{name}.toml"
             h = {k: ask(p, f"build {name} {path} {args.warm}")["h"] for k, p in procs.items()}
             best = {k: float("inf") for k in procs}
             for _ in range(args.rounds):
