@@ -51,6 +51,31 @@ def test_mean_value_pressure_is_the_difference_quotient_of_the_internal_energy()
     assert abs(a[0] / a[1] - 1) < 1e-5
 
 
+
+@pytest.mark.parametrize("gamma", [7.0, 1.0])
+def test_a_barotropic_liquid_s_mean_value_pressure_is_the_difference_quotient_of_its_energy(gamma):
+    """The Tait liquid (docs/theory.md §12d): p(V) = c + K V^-gamma (eos.power_law) is its pressure, and c plus the
+    kernel's mean value of K V^-gamma is -(psi(V1) - psi(V0)) / (V1 - V0) of its own internal energy psi (gamma = 1,
+    the linear law: the kernel's log branch)."""
+    from varint.terms.thermo import Tait
+
+    eos = Tait(1000.0, 1e5, 2.2e7, gamma)
+    m = np.array([1.0, 2.0, 0.5, 1.5])
+    V0 = m / 1000.0 * np.array([1.0, 0.99, 1.02, 1.0])
+    V1 = V0 * np.array([1.01, 0.97, 1.0 + 2e-4, 1.3])
+    c, K = eos.power_law(m)
+    assert np.allclose(c + K * V0 ** -gamma, eos.pressure(m / V0), rtol=1e-13)
+    P, dP = mean_value_pressure(V0, V1, K, gamma)
+    quotient = -(eos.psi(V1, m) - eos.psi(V0, m)) / (V1 - V0)
+    far = np.abs(V1 / V0 - 1) > 1e-3  # (the quotient itself loses digits to cancellation near V1 = V0)
+    assert np.allclose((c + P)[far], quotient[far], rtol=1e-10)
+    assert np.allclose(c + P, quotient, rtol=1e-6)
+    for eps in (1e-6, 1e-4):
+        dV = eps * V0
+        fd = (mean_value_pressure(V0, V1 + dV, K, gamma)[0] - mean_value_pressure(V0, V1 - dV, K, gamma)[0]) / (2 * dV)
+        assert np.allclose(dP, fd, rtol=1e-6)
+
+
 def test_viscous_pressure_formula_and_derivative():
     m = np.array([1.0, 0.5, 2.0, 1.0])
     K = np.array([1.0, 0.3, 2.0, 1.0])

@@ -80,9 +80,10 @@ def straight_tube_supports(model):
     """The straight tube's energy-momentum step (the midpoint step with discrete-gradient pressures, docs/theory.md
     §12d): None where it is built, else the reason naming the key."""
     t = model.tube
-    if t.eos is None or not t.eos.has_entropy:
-        return ("time.scheme: 'energy-momentum' on the straight tube needs an ideal gas (fluid.model = 'ideal-gas'): "
-                "its discrete-gradient pressure is the ideal gas's mean-value pressure; a liquid runs 'midpoint'")
+    if t.eos is None:
+        return ("time.scheme: 'energy-momentum' on the straight tube needs a compressible fluid (fluid.model = "
+                "'ideal-gas' or 'barotropic'): an incompressible liquid's volumes would have to be held at the levels "
+                "with the discrete-gradient volumes as the constraint's force (docs/theory.md §12d); it runs 'midpoint'")
     if t.has_wall and not t.wall_dynamic:
         return ("time.scheme: 'energy-momentum' needs a rigid or a dynamic wall on the straight tube: a quasistatic "
                 "wall's radii are half-level unknowns of the midpoint step (wall.model)")

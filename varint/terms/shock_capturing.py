@@ -58,12 +58,13 @@ _SERIES = 1e-3
 
 @njit(cache=True)
 def _mean_value_pressure(V0, V1, K, gamma, P, dP):
-    """Ptilde = -(E(V1) - E(V0)) / (V1 - V0) of E(V) = K V^(1-gamma) / (gamma - 1), and dPtilde/dV1.
+    """Ptilde = -(E(V1) - E(V0)) / (V1 - V0) of E(V) = K V^(1-gamma) / (gamma - 1), and dPtilde/dV1 (gamma = 1, a
+    linear barotropic law: E(V) = -K log V).
 
-    Written as p0 phi(x), p0 = K V0^-gamma, x = V1/V0 - 1, phi(x) = -expm1((1-gamma) log1p(x)) / ((gamma-1) x):
-    expm1 and log1p keep phi accurate to round-off down to x -> 0 (phi(0) = 1, the pressure at V0 = V1).
-    dphi/dx has a cancellation near 0 and is then taken from phi's series,
-    phi = 1 - g/2 x + g(g+1)/6 x^2 - g(g+1)(g+2)/24 x^3 + g(g+1)(g+2)(g+3)/120 x^4 - ...
+    Written as p0 phi(x), p0 = K V0^-gamma, x = V1/V0 - 1, phi(x) = -expm1((1-gamma) log1p(x)) / ((gamma-1) x)
+    (gamma = 1: log1p(x) / x): expm1 and log1p keep phi accurate to round-off down to x -> 0 (phi(0) = 1, the
+    pressure at V0 = V1).  dphi/dx has a cancellation near 0 and is then taken from phi's series,
+    phi = 1 - g/2 x + g(g+1)/6 x^2 - g(g+1)(g+2)/24 x^3 + g(g+1)(g+2)(g+3)/120 x^4 - ... (the same at g = 1).
     """
     for k in range(V0.shape[0]):
         p0 = K[k] * V0[k] ** (-gamma)
@@ -71,6 +72,8 @@ def _mean_value_pressure(V0, V1, K, gamma, P, dP):
         g = gamma
         if x == 0.0:
             phi = 1.0
+        elif g == 1.0:
+            phi = math.log1p(x) / x
         else:
             phi = -math.expm1((1.0 - g) * math.log1p(x)) / ((g - 1.0) * x)
         if abs(x) < _SERIES:
@@ -79,6 +82,9 @@ def _mean_value_pressure(V0, V1, K, gamma, P, dP):
             c3 = -g * (g + 1.0) * (g + 2.0) / 24.0
             c4 = g * (g + 1.0) * (g + 2.0) * (g + 3.0) / 120.0
             dphi = c1 + x * (2.0 * c2 + x * (3.0 * c3 + x * 4.0 * c4))
+        elif g == 1.0:
+            # phi' = [x / (1+x) - log1p(x)] / x^2
+            dphi = (x / (1.0 + x) - math.log1p(x)) / (x * x)
         else:
             # phi' = [(g-1) (1+x)^-g x - (1 - (1+x)^(1-g))] / ((g-1) x^2)
             dphi = ((g - 1.0) * (1.0 + x) ** (-g) * x + math.expm1((1.0 - g) * math.log1p(x))) / ((g - 1.0) * x * x)
@@ -174,7 +180,8 @@ def tridiagonal(diag, lower, upper, periodic):
 
 
 def mean_value_pressure(V0, V1, K, gamma):
-    """(Ptilde, dPtilde/dV1) per parcel for an ideal gas p = K V^-gamma (K = exp(S/c_v) m^gamma)."""
+    """(Ptilde, dPtilde/dV1) per parcel for p = K V^-gamma: an ideal gas (K = exp(S/c_v) m^gamma) or the volume-
+    dependent part of a barotropic liquid (``eos.power_law``; its constant part is its own mean value)."""
     V0, V1, K = (np.ascontiguousarray(a, dtype=np.float64) for a in (V0, V1, K))
     P, dP = np.empty_like(V0), np.empty_like(V0)
     _mean_value_pressure(V0, V1, K, float(gamma), P, dP)
@@ -219,7 +226,7 @@ def set_viscosity(force, tube, keys):
     asks for it) and the reference cross-section ``A`` = pi R0^2."""
     eos = tube.eos
     force.tube = tube
-    force.gamma, force.cv = eos.gamma, eos.cv
+    force.gamma, force.cv = eos.gamma, getattr(eos, "cv", None)  # (a barotropic liquid: no entropy, no heating)
     force.cQ, force.cL = float(keys.quadratic), float(keys.linear)
     force.limiter = getattr(keys, "limiter", "none") == "christensen"
     force.A = math.pi * float(tube.R0) ** 2
@@ -274,9 +281,13 @@ class ShockCapturing(Force):
         g[1:] += X
         return self.A * np.bincount(self.col, weights=g[self.lab], minlength=self.nz)
 
-    def _K(self):
+    def _power_law(self):
+        """(c, K) of the parcels' pressure p(V) = c + K V^-gamma (``eos.power_law``)."""
         t = self.tube
-        return np.exp(t.S / self.cv) * t.m ** self.gamma
+        return t.eos.power_law(t.m, getattr(t, "S", None))
+
+    def _K(self):
+        return self._power_law()[1]
 
     def pressures(self, pt):
         """Per parcel at the step ``pt``: (X, dX/dV1, Q, V0, V1) with X = Ptilde - p(Vbar) + Q."""
@@ -329,6 +340,8 @@ class ShockCapturing(Force):
     def after_step(self, pt):
         """Heat each parcel by its viscous work: E_k(V^{n+1}, S_k') = E_k(V^{n+1}, S_k) + W_k."""
         t = self.tube
+        if not t.eos.has_entropy:  # a barotropic liquid: only the viscosity-free discrete gradient (§12d), W = 0
+            return
         _, _, Q, V0, V1 = self.pressures(pt)
         W = np.maximum(-Q * (V1 - V0), 0.0)  # Q > 0 only where V1 < V0: W >= 0 (the max guards round-off)
         t.S[:] = heated_entropy(t.S, V1, self._K(), W, self.gamma, self.cv)
@@ -579,7 +592,7 @@ class SwellingShockCapturing(ShockCapturing):
 
         eos = tube.eos
         self.tube = tube
-        self.gamma, self.cv = eos.gamma, eos.cv
+        self.gamma, self.cv = eos.gamma, getattr(eos, "cv", None)
         self.cQ, self.cL = float(keys.quadratic), float(keys.linear)
         self.limiter = getattr(keys, "limiter", "none") == "christensen"
         if tube.nlam:
@@ -609,9 +622,10 @@ class SwellingShockCapturing(ShockCapturing):
         """Per parcel at the step ``pt``: (X, dX/dV1, Q, V0, V1) with X = Ptilde + Q, the pressure that
         multiplies the discrete gradient of V_k (the midpoint pressure is cancelled separately)."""
         c0, c1, V0, V1 = levels if levels is not None else self._levels(pt)
-        K = self._K()
+        c, K = self._power_law()
         g = self.gamma
         P, dP = mean_value_pressure(V0, V1, K, g)
+        P = P + c  # (a barotropic liquid's constant part is its own mean value)
         A0 = V0 / np.diff(c0.s)  # the parcels' mean cross-section at level n
         Q, dQ = viscous_pressure(V0, V1, self.tube.m, K, g, A0, pt.h, self.cQ, self.cL)
         self._off = None

@@ -52,6 +52,11 @@ class IdealGas:
         p = self.pressure(m / V, S)
         return -p, self.gamma * p / V
 
+    def power_law(self, m, S):
+        """(c, K): the parcels' pressure as p(V) = c + K V^-gamma (c = 0, K = exp(S/c_v) m^gamma), the form whose
+        mean-value pressure varint.terms.shock_capturing computes."""
+        return 0.0, np.exp(np.asarray(S) / self.cv) * np.asarray(m) ** self.gamma
+
 
 class Tait:
     """Barotropic liquid p = p0 + (B / gamma) ((rho / rho0)^gamma - 1) (gamma = 1: the linear law p0 + B (rho/rho0 - 1)).
@@ -95,6 +100,12 @@ class Tait:
     def dpsi(self, V, m, S=None):
         rho = m / V
         return -self.pressure(rho), rho * self.dp_drho(rho) / V
+
+    def power_law(self, m, S=None):
+        """(c, K): the parcels' pressure as p(V) = c + K V^-gamma, c = p0 - B/gamma, K = (B/gamma) (m/rho0)^gamma
+        (gamma = 1: the linear law p0 - B + B m / (rho0 V)), the form whose mean-value pressure
+        varint.terms.shock_capturing computes."""
+        return self.p0 - self.B / self.gamma, self.B / self.gamma * (np.asarray(m) / self.rho0) ** self.gamma
 
 
 def make_eos(fluid):
