@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .run.io import read_run
+from .run.io import energy_motion_scale, read_run
 
 __all__ = ["plot_run", "plot_profiles", "animate_run", "monitors_figure", "fields_figure", "profiles_figure",
            "animation_figure", "monitor_panels", "Panel", "declared_invariants", "energy_scale", "log_floor",
@@ -29,10 +29,6 @@ __all__ = ["plot_run", "plot_profiles", "animate_run", "monitors_figure", "field
 
 EPS = np.finfo(float).eps
 
-# |E0| is the scale of the energy error only when it is at least this fraction of the largest energy term;
-# below, (E - E0)/|E0| magnifies the error by the ratio (a cantilever released from rest and straight has
-# E0 ~ 1e-28 J against terms of 0.03 J, and read 1e19).
-ENERGY_E0_FRACTION = 0.1
 # rod deflections below this fraction of the length are drawn on their own scale (um, mm) ...
 VISIBLE_FRACTION = 0.05
 # ... unless they are at round-off (relative to the length), which is never magnified
@@ -66,21 +62,14 @@ def _term_name(key):
 
 
 def energy_scale(mon):
-    """(scale [J], what it is) for the energy error (E - E0) / scale.
-
-    ``|E0|`` when it is at least ``ENERGY_E0_FRACTION`` of the largest energy term over the run (kinetic_energy
-    and every ``energy_*``: max over time of ``|term|``); otherwise that largest term, so a run starting from
-    zero energy (at rest and unloaded) is measured against the energy it actually moves around.
-    ``(1.0, None)`` when everything is zero (the error is then plotted in joules).
+    """(scale [J], what it is) for the energy error (E - E0) / scale: the energy that moves, the largest kinetic
+    energy plus the largest change of the potential energy (:func:`varint.run.io.energy_motion_scale`, as
+    ``varint info`` reports it), never ``|E0|``, which a gas's internal energy or a liquid's p V dominates.
+    ``(1.0, None)`` when nothing moves (the error is then plotted in joules).
     """
-    E0 = abs(float(mon["energy"][0]))
-    terms = {k: float(np.max(np.abs(v))) for k, v in mon.items()
-             if (k == "kinetic_energy" or k.startswith("energy_")) and np.size(v)}
-    key, top = max(terms.items(), key=lambda kv: kv[1]) if terms else (None, 0.0)
-    if E0 > 0 and E0 >= ENERGY_E0_FRACTION * top:
-        return E0, "|E0|"
-    if top > 0:
-        return top, f"max |E_{_term_name(key)}|"
+    scale = energy_motion_scale(mon["energy"], mon.get("kinetic_energy"))
+    if scale > 0:
+        return scale, "(max K + range of U)"
     return 1.0, None
 
 
@@ -133,9 +122,7 @@ def monitor_panels(mon, invariants=None, geometry=None):
         if what is None:
             panels.append(Panel("energy error E - E0 [J]", [("energy", dE)]))
         else:
-            note = f"{what} = {scale:.3g} J"
-            if what != "|E0|":
-                note += f"\n(|E0| = {abs(mon['energy'][0]):.2g} J)"
+            note = f"{what} = {scale:.3g} J\n(|E0| = {abs(mon['energy'][0]):.2g} J)"
             panels.append(Panel(f"energy error (E - E0) / {what}", [("energy", dE / scale)], note=note))
     if "frame_orthogonality" in mon:
         panels.append(Panel("energy terms [J]", _energy_terms(mon)))
