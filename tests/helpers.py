@@ -75,6 +75,21 @@ MOMENTUM_RTOL = 1e-12
 ENERGY_RTOL = 2e-3
 
 
+def energy_error_on_motion(sim, steps):
+    """Step ``sim`` ``steps`` times; max abs(E - E0) over the run relative to the energy that moves (the largest
+    kinetic energy plus the largest change of the potential, varint.run.io.energy_motion_scale: never |E0|, which a
+    gas's internal energy dominates).  Returns (error, the last monitors)."""
+    from varint.run.io import energy_motion_scale
+
+    mons = [sim.monitors()]
+    for _ in range(steps):
+        sim.step()
+        mons.append(sim.monitors())
+    E = np.array([m["energy"] for m in mons])
+    K = np.array([m["kinetic_energy"] for m in mons])
+    return float(np.max(np.abs(E - E[0])) / energy_motion_scale(E, K)), mons[-1]
+
+
 def _series(mons, key):
     return np.array([np.asarray(m[key], dtype=float) for m in mons])
 
