@@ -25,7 +25,7 @@ def test_the_capability_page_is_current():
 
 def test_the_schema_s_choices_are_the_registered_schemes():
     key = next(k for k in SCHEMA["time"] if k.name == "scheme")
-    assert tuple(key.choices) == tuple(SCHEMES)
+    assert tuple(key.choices) == tuple(SCHEMES) + ("auto",)
 
 
 @pytest.mark.parametrize("cell, scheme", RUNS, ids=[f"{c.label}-{s}" for c, s in RUNS])
@@ -46,3 +46,30 @@ def test_a_cell_that_runs_steps_and_keeps_its_declared_invariants(cell, scheme):
         if not err <= tol:
             failures.append(f"{name}: {err:.3g} > {tol:g}")
     assert not failures, "; ".join(failures)
+
+
+def test_auto_is_the_energy_momentum_scheme_where_it_covers_the_scene_and_the_midpoint_elsewhere(tmp_path):
+    """``time.scheme = "auto"`` (docs/scenes.md): a closed gas tube in a dynamic wall steps with the energy-momentum
+    scheme (its energy to the solver's tolerance), the same tube in a quasistatic wall with the midpoint; the run file
+    and the model say which."""
+    import h5py
+    import numpy as np
+
+    from helpers import energy_error_on_motion
+    from varint import build_model
+    from varint.run.runner import run_scene
+    from varint.scene.standard import gas_scene, scene_of
+
+    pulse = [{"field": "pressure", "shape": "gaussian", "amplitude": 2e4, "center": 0.5, "width": 0.1}]
+    for wall, expect in (("dynamic", "energy-momentum"), ("quasistatic", "midpoint")):
+        d = gas_scene(nodes=17, parcels=16, h=2e-5, end=2e-4, scheme="auto", perturbation=pulse)
+        d["wall"]["model"] = wall
+        model = build_model(scene_of(d))
+        sim = Simulation(model)
+        assert sim.scheme.name == expect and model.describe()["scheme"] == expect
+        err, _ = energy_error_on_motion(sim, 10)
+        assert (err < 1e-9) == (expect == "energy-momentum"), err
+        out = tmp_path / f"{wall}.h5"
+        run_scene(scene_of(d), str(out), progress=False)
+        with h5py.File(out, "r") as f:
+            assert f.attrs["scheme"] == expect and np.isfinite(f["monitors/energy"][-1])

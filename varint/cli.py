@@ -146,7 +146,8 @@ def cmd_check(args):
     if "fluid" in d:
         print("  fluid: " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}" for k, v in d["fluid"].items()))
     t = scene.time
-    print(f"  time: scheme = {t.scheme}, step = {t.step:g} s, end = {t.end:g} s ({scene.steps} steps), newton_tol = {t.newton_tol:g}")
+    chosen = "" if t.scheme == model.scheme else f" (stepped by {model.scheme})"
+    print(f"  time: scheme = {t.scheme}{chosen}, step = {t.step:g} s, end = {t.end:g} s ({scene.steps} steps), newton_tol = {t.newton_tol:g}")
     if scene.end_note:
         print(f"  note: {scene.end_note}")
     print("  schemes: " + "; ".join(f"{name}: {what}" for name, what in d["schemes"].items()))

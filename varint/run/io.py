@@ -209,9 +209,10 @@ def _put_vector(g, name, val):
 class RunWriter:
     """Append-only writer of one run file."""
 
-    def __init__(self, path, scene, h, monitors, fields, resume=False, records=None, invariants=None):
+    def __init__(self, path, scene, h, monitors, fields, resume=False, records=None, invariants=None, scheme=None):
         self.path = str(path)
         self.f = None
+        self.scheme = scheme or scene.time.scheme  # the scheme that steps the run ("auto" resolved by the caller)
         self.records = records
         self.invariants = invariants
         try:
@@ -248,7 +249,7 @@ class RunWriter:
         f = self.f
         f.attrs["varint_version"] = __version__
         f.attrs["scene_toml"] = scene.text
-        f.attrs["scheme"] = scene.time.scheme
+        f.attrs["scheme"] = self.scheme
         f.attrs["step"] = float(h)
         f.attrs["title"] = scene.title
         f.attrs["records"] = 0

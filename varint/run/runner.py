@@ -213,7 +213,7 @@ def _run(scene, out, resume, progress, max_steps, note):
     groups = scene.output.fields
     n_end = scene.steps if sim.h == scene.time.step else step_count(scene.time.end, sim.h)
     writer = RunWriter(out, scene, sim.h, sim.monitors(), _select(sim.fields(), groups), resume=resume,
-                       records=_records(n_end, every), invariants=model.invariants())
+                       records=_records(n_end, every), invariants=model.invariants(), scheme=sim.scheme.name)
     bar = None
     at = None  # the step being computed (None: between steps)
     try:

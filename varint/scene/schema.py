@@ -194,11 +194,13 @@ SCHEMA = MappingProxyType({
         _pos("end", "s", "final time: the run takes ceil(end/step) steps, so it ends at end when end is a multiple of step "
              "and otherwise at the first multiple of step after end (varint check and varint run say so in one line); "
              "at most 10^9 steps"),
-        Key("scheme", "str", "midpoint", "", "quadrature of the potential in the discrete action; 'energy-momentum': energy and "
-            "momenta conserved at any step (a dead tip torque changes them by its work and impulse), for the rod (shearable or "
-            "rod.constraint; docs/theory.md §12a) and the "
-            "coupled tube with closed ends and a rigid or dynamic wall (§12b)",
-            choices=("midpoint", "trapezoidal", "energy-momentum")),
+        Key("scheme", "str", "midpoint", "", "the step: 'midpoint' (variational, symplectic; docs/theory.md §4), "
+            "'trapezoidal' (its potential by the trapezoidal rule, a tube without algebraic unknowns), 'energy-momentum' "
+            "(energy and momenta conserved to the solver's tolerance at any step; a dead tip torque changes them by its "
+            "work and impulse; the rod §12a, the coupled tube with closed ends §12b, the straight tube with a compressible "
+            "fluid §12d: docs/capabilities.md lists what each covers), or 'auto' (the energy-momentum scheme where it "
+            "covers the scene, else the midpoint: long coupled runs the midpoint loses, docs/validation.md 'Long runs')",
+            choices=("midpoint", "trapezoidal", "energy-momentum", "auto")),
         Key("newton_tol", "float", 1e-12, "", "Newton stops when the scaled update is below this", low=0.0, low_open=True),
         Key("max_iterations", "int", 25, "", "Newton iterations before the step is declared failed", low=1),
         Key("adaptive", "bool", True, "", "step control: a step that fails at time.step (Newton, a frame turning by more "
