@@ -93,6 +93,15 @@ def test_viscous_pressure_formula_and_derivative():
     e = 1e-7
     fd = (viscous_pressure(V0, V1 + e, m, K, GAMMA, A, h, cQ, cL)[0] - viscous_pressure(V0, V1 - e, m, K, GAMMA, A, h, cQ, cL)[0]) / (2 * e)
     assert np.allclose(dQ[[0, 2]], fd[[0, 2]], rtol=1e-7)
+    # the complex-safe form (the energy-momentum step's complex steps): a batch of V1 + i e gives Q + i e dQ
+    from varint.terms.shock_capturing import viscous_pressure_q
+
+    eps = np.array([[1e-30], [3e-30]])
+    Qc = viscous_pressure_q(V0, V1[None, :] + 1j * eps, m, K, GAMMA, A, h, cQ, cL)
+    assert Qc.shape == (2, 4) and np.all(Qc.real == Q[None, :]) and np.allclose(Qc.imag / eps, dQ[None, :], rtol=1e-15)
+    assert np.all(viscous_pressure_q(V0, V1, m, K, GAMMA, A, h, cQ, cL) == Q)
+    with pytest.raises(TypeError, match="only V1"):
+        viscous_pressure_q(V0 + 0j, V1, m, K, GAMMA, A, h, cQ, cL)
 
 
 def test_heating_raises_the_internal_energy_by_the_work():

@@ -188,28 +188,55 @@ def mean_value_pressure(V0, V1, K, gamma):
     return P, dP
 
 
-def viscous_pressure_q(V0, V1, m, K, gamma, A, h, cQ, cL):
-    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A_k h), rho = m/Vbar and c at Vbar
-    (module docstring, item 1), per parcel; complex-safe (a complex step through V1 gives dQ/dV1: the branch is
-    taken on the real part).
-
-    ``A`` per parcel (or scalar): the tube's cross-section (rigid uniform tube) or the parcel's mean cross-section at
-    level n, V_k^n / (s_{k+1}^n - s_k^n) (a swelling tube), so that du is the jump of the label velocity that would
-    compress the parcel's volume by V1 - V0 at that cross-section."""
-    du = (V1 - V0) / (A * h)
-    Vb = 0.5 * (V0 + V1)
-    rho = m / Vb
-    c = np.sqrt(gamma * K * Vb ** (-gamma) / rho)
-    d = -du
-    return np.where(np.real(du) < 0.0, rho * (cQ * cQ * d * d + cL * c * d), 0.0 * du)
+@njit(cache=True)
+def _k_viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL, Q, dQ):
+    """Q_k = rho (c_Q^2 d^2 + c_L c d), d = max(0, -du), du = (V1 - V0)/(A_k h), rho and c at Vbar, and dQ/dV1, on flat
+    arrays of one length (:func:`viscous_pressure`)."""
+    for k in range(V0.shape[0]):
+        du = (V1[k] - V0[k]) / (A[k] * h)
+        if du >= 0.0:
+            Q[k] = 0.0
+            dQ[k] = 0.0
+            continue
+        d = -du
+        dd = -1.0 / (A[k] * h)  # d(d)/dV1: compressing further (V1 smaller) raises d
+        Vb = 0.5 * (V0[k] + V1[k])
+        rho = m[k] / Vb
+        c = math.sqrt(gamma * K[k] * Vb ** (-gamma) / rho)
+        drho = -0.5 * rho / Vb  # d rho / dV1 (dVbar/dV1 = 1/2)
+        dc = 0.25 * (1.0 - gamma) * c / Vb  # c ~ Vbar^((1-gamma)/2)
+        f = cQ * cQ * d * d + cL * c * d
+        df = 2.0 * cQ * cQ * d * dd + cL * (dc * d + c * dd)
+        Q[k] = rho * f
+        dQ[k] = drho * f + rho * df
 
 
 def viscous_pressure(V0, V1, m, K, gamma, A, h, cQ, cL):
-    """(Q, dQ/dV1) per parcel (:func:`viscous_pressure_q`; the derivative by a complex step, exact to round-off)."""
-    V0, V1, m, K = (np.asarray(a, dtype=np.float64) for a in (V0, V1, m, K))
-    eps = 1e-30 * np.maximum(np.abs(V1), 1e-300)
-    Qc = viscous_pressure_q(V0, V1 + 1j * eps, m, K, float(gamma), A, float(h), float(cQ), float(cL))
-    return np.ascontiguousarray(Qc.real), np.ascontiguousarray(Qc.imag / eps)
+    """(Q, dQ/dV1) per parcel (module docstring, item 1); ``A`` a cross-section, scalar or per parcel.
+
+    ``A`` per parcel: the tube's cross-section (rigid uniform tube) or the parcel's mean cross-section at level n,
+    V_k^n / (s_{k+1}^n - s_k^n) (a swelling tube), so that du is the jump of the label velocity that would compress
+    the parcel's volume by V1 - V0 at that cross-section."""
+    V0, V1, m, K = (np.ascontiguousarray(a, dtype=np.float64) for a in (V0, V1, m, K))
+    A = np.ascontiguousarray(np.broadcast_to(np.asarray(A, dtype=np.float64), V0.shape))
+    Q, dQ = np.empty_like(V0), np.empty_like(V0)
+    _k_viscous_pressure(V0, V1, m, K, float(gamma), A, float(h), float(cQ), float(cL), Q, dQ)
+    return Q, dQ
+
+
+def viscous_pressure_q(V0, V1, m, K, gamma, A, h, cQ, cL):
+    """Q of :func:`viscous_pressure`, complex-safe for a complex step through V1 (the energy-momentum step's Jacobian,
+    varint/schemes/em_tube.py): Q(V1 + i e) = Q(V1) + i e dQ/dV1 to round-off for the step's e ~ 1e-30, taken from
+    the kernel's exact derivative; the branch on Re V1.  The arrays broadcast (a batch of V1)."""
+    V1 = np.asarray(V1)
+    if any(np.iscomplexobj(a) for a in (V0, m, K, A)):
+        raise TypeError("viscous_pressure_q: only V1 may carry a complex step (V0, m, K, A are level-n data)")
+    V0, V1, m, K, A = np.broadcast_arrays(V0, V1, m, K, A)
+    shape = V1.shape
+    Q, dQ = viscous_pressure(np.ravel(V0), np.ravel(np.real(V1)), np.ravel(m), np.ravel(K), gamma, np.ravel(A), h, cQ, cL)
+    if np.iscomplexobj(V1):
+        return (Q + 1j * np.ravel(np.imag(V1)) * dQ).reshape(shape)
+    return Q.reshape(shape)
 
 
 def heated_entropy(S, V1, K, W, gamma, cv):
