@@ -87,8 +87,10 @@ def straight_tube_supports(model):
     if t.has_wall and not t.wall_dynamic:
         return ("time.scheme: 'energy-momentum' needs a rigid or a dynamic wall on the straight tube: a quasistatic "
                 "wall's radii are half-level unknowns of the midpoint step (wall.model)")
-    if t.open_ends:
-        return "time.scheme: 'energy-momentum' covers closed and periodic fluid ends of the straight tube (fluid.ends)"
+    if t.open_ends and (t.has_wall or not t.duct.uniform):
+        return ("time.scheme: 'energy-momentum' with open fluid ends (fluid.ends) needs a rigid uniform tube in this "
+                "version (its volumes linear in the labels; a [wall] or tube.area_table would need their discrete "
+                "gradients on the moving lattice, docs/theory.md §12d)")
     return None
 
 
@@ -856,10 +858,14 @@ def k_dg_row(r0, D0, Om0, G0, a0, c0, r1, D1, ds, Jd, Kd, stress, Fr, FD, G1, Db
                 FD[e + 1, i, j] += Dbar[e, i, 0] * Phi[0, j] + Dbar[e, i, 1] * Phi[1, j] + Dbar[e, i, 2] * Phi[2, j]
 
 
+#: the period a closed rod's strains do not read (its own array: the strains' scratch ``d`` must not alias it)
+_NO_PERIOD = np.zeros(3)
+
+
 @njit(cache=True, inline="always")
 def k_level_strains(r0, D0, ds, Om0, G0, pa, pb, a0, c0, T, d, om):
     """The level's strains that :func:`k_dg_row` reads (varint.terms.rod.k_strains_row of a closed rod)."""
-    k_strains_row(D0, r0, ds, False, d, Om0, G0, pa, pb, a0, c0, T, d, om)
+    k_strains_row(D0, r0, ds, False, _NO_PERIOD, Om0, G0, pa, pb, a0, c0, T, d, om)
 
 
 @njit(cache=True)

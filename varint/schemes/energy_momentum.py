@@ -19,6 +19,7 @@ from .monitors import LevelMonitors
 from .state import State
 from .variational import VariationalStepper
 from ..terms.shock_capturing import ShockCapturing, make_shock_capturing
+from ..terms.open_ends import OpenMeanValuePressure
 
 __all__ = ["EnergyMomentum", "EnergyMomentumStepper"]
 
@@ -64,15 +65,18 @@ class EnergyMomentum(Scheme):
 def straight_tube_stepper(model, h, tol=None, max_iter=None, state=None):
     """The straight tube's energy-momentum step (docs/theory.md §12d): the midpoint step of its labels and radii
     with the parcels' pressures and volumes replaced by their discrete gradients -- the mean-value pressure of an
-    ideal gas and the averaged-vector-field gradient of a swelling parcel's volume, §11a's force with no viscosity
-    (a scene's own [shock_capturing] force already carries them)."""
+    ideal gas or a barotropic liquid and the averaged-vector-field gradient of a swelling parcel's volume, §11a's force
+    with no viscosity (a scene's own [shock_capturing] force already carries them); with open ends in a rigid uniform
+    duct, the mean-value pressures on the lattice of each level (varint.terms.open_ends.OpenMeanValuePressure)."""
     t = model.tube
     extra = []
-    if not any(isinstance(f, ShockCapturing) for f in model.forces):
+    if getattr(t, "open", False):  # open ends: the rigid uniform duct's pressures on the lattice of the level (§13.4)
+        extra.append(OpenMeanValuePressure(t))
+    elif not any(isinstance(f, ShockCapturing) for f in model.forces):
         extra.append(make_shock_capturing(t, SimpleNamespace(quadratic=0.0, linear=0.0, limiter="none")))
     tcfg = model.scene.time
     return VariationalStepper(model, h, "midpoint", min(tcfg.newton_tol, 1e-12) if tol is None else tol, max_iter,
-                              state, extra_forces=extra)
+                              state, extra_forces=extra, scheme_name="energy-momentum")
 
 
 class EnergyMomentumStepper(LevelMonitors, Stepper):

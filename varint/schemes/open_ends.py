@@ -115,6 +115,9 @@ class OpenEndsStepping:
         else:
             cfg = t.config(np.concatenate([0.5 * (pt.q0 + pt.q1), pt.lam]))
             g = t.gradient(cfg)[: t.M + 1]
+            for f in getattr(self, "extra_forces", ()):  # the energy-momentum step's mean-value pressures (§12d)
+                if hasattr(f, "label_correction"):
+                    g = g + f.label_correction(pt)
             dP = -h * float(np.sum(g))
             if nf:
                 dE += (after - t.piston) * g[0]

@@ -26,9 +26,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from .forces import Declaration, Force
+from .shock_capturing import mean_value_pressure
 from ..lattice.parcels import volume_below
 
-__all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures", "OpenLevelConstraint",
+__all__ = ["Duct", "OpenInternalEnergy", "OpenIncompressibility", "EndPressures", "OpenMeanValuePressure",
+           "OpenLevelConstraint",
            "section_at", "open_end_limits"]
 
 
@@ -404,6 +406,69 @@ class EndPressures(Force):
             R1, C, R2 = t.windkessel
             a, b = C / pt.h + 0.5 / R2, C / pt.h - 0.5 / R2
             t.p_c = (t.p_c * b + Q + t.p_out / R2) / a
+
+
+class OpenMeanValuePressure(Force):
+    """The energy-momentum scheme's pressures in the open rigid uniform tube (docs/theory.md §12d, §13.4).
+
+    The midpoint step's parcels push their labels with p(Vbar_k), the pressure at the step's mean volume; the
+    energy-momentum step replaces it by the mean-value pressure Ptilde_k = -(psi_k(V^{n+1}) - psi_k(V^n)) / dV_k (an
+    ideal gas or a barotropic liquid, varint.terms.shock_capturing.mean_value_pressure), so that the pressures' work
+    over the step is the internal energy's change exactly.  In a rigid uniform duct V_k = A (s_{k+1} - s_k) is linear
+    in the labels, so the correction is the force f^- = f^+ = (h/2) G^T X, X_k = Ptilde_k - p(Vbar_k), on the free
+    labels, with each level's own labels: the piston (a velocity inlet) at its level positions (t.piston and
+    t.piston_after(h)).  The lattice is read at each call, so the force follows the parcels injected and removed at
+    the levels.  :meth:`label_correction` gives the same correction on every label, the piston's included, in the
+    potential's gradient units, for the balances (the piston's work and reaction with Ptilde_0,
+    varint.schemes.open_ends.OpenEndsStepping._open_fluxes): the energy balance then closes to the solver's tolerance.
+    """
+
+    declaration = Declaration("mean_value_pressure", {})
+
+    def __init__(self, tube):
+        self.tube = tube
+        self.gamma = float(tube.eos.gamma)
+        self.A = float(tube.duct.A_in)
+
+    def _labels(self, q, level, h):
+        t = self.tube
+        free = q[: t.layout["s"].stop]
+        if not t.n_fixed:
+            return free
+        return np.concatenate([[t.piston if level == 0 else t.piston_after(h)], free])
+
+    def pressures(self, pt):
+        """(X, dX/dV^{n+1}) per parcel: the mean-value pressure less the midpoint's."""
+        t = self.tube
+        V0 = self.A * np.diff(self._labels(pt.q0, 0, pt.h))
+        V1 = self.A * np.diff(self._labels(pt.q1, 1, pt.h))
+        _, K = t.eos.power_law(t.m, getattr(t, "S", None))  # (the constant part is its own mean value)
+        P, dP = mean_value_pressure(V0, V1, K, self.gamma)
+        Vb = 0.5 * (V0 + V1)
+        pb = K * Vb ** (-self.gamma)
+        return P - pb, dP + 0.5 * self.gamma * pb / Vb
+
+    def label_correction(self, pt):
+        """The correction to the potential's gradient dU/ds on every label (piston first): A (X_j - X_{j-1})."""
+        X = self.pressures(pt)[0]
+        return self.A * (np.concatenate([X, [0.0]]) - np.concatenate([[0.0], X]))
+
+    def add(self, pt, d, level):
+        ns = self.tube.layout["s"].stop
+        d.tube_q[:ns] -= 0.5 * pt.h * self.label_correction(pt)[self.tube.n_fixed:]
+
+    def jacobian(self, pt):
+        """d f^-/dq^{n+1} = (h/2) A^2 D^T diag(dX/dV1) D on the free labels (D the parcels' label difference)."""
+        t = self.tube
+        dX = self.pressures(pt)[1]
+        M, nf, ns = len(dX), t.n_fixed, t.layout["s"].stop
+        k = np.arange(M)
+        a, b = k - nf, k + 1 - nf  # the free-label columns of parcel k's two labels (-1: the piston)
+        rows = np.concatenate([a, b, a, b])
+        cols = np.concatenate([a, b, b, a])
+        vals = 0.5 * pt.h * self.A * self.A * np.concatenate([dX, dX, -dX, -dX])
+        keep = (rows >= 0) & (cols >= 0)
+        return sp.csc_matrix((vals[keep], (rows[keep], cols[keep])), shape=(t.nz, t.nz))
 
 
 class OpenLevelConstraint:
