@@ -1,9 +1,10 @@
 """examples/water_filled_hose.toml run long: the energy error on the motion's scale, and where each scheme stops.
 
 The rubber hose full of water, clamped at one end, swings under gravity (a quasistatic wall, 20 elements, 20
-parcels, h = 1 ms).  The example's midpoint run fails Newton at step 2417 (0.2, issue "long runs"); with step control
-it halves such steps.  The energy-momentum scheme (docs/theory.md §12b, its quasistatic wall) keeps the energy to
-the solver's tolerance.  Reported per scheme: where the run ended and why, the largest energy error relative to the
+parcels, h = 1 ms).  With the midpoint scheme the run failed Newton at step 2417 in 0.2 (issue "long runs"); with
+step control it halves such steps and still fails, at step 2424 (docs/validation.md, "Long runs").  The energy-momentum
+scheme (docs/theory.md §12b, its quasistatic wall), which the example now names, keeps the energy to the solver's
+tolerance.  Reported per scheme: where the run ended and why, the largest energy error relative to the
 energy that moves (the largest kinetic energy plus the potential's range), the energy error's least-squares slope over
 the second half (a drift), the halved steps and the CPU time per step.
 

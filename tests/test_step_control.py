@@ -110,3 +110,11 @@ def test_a_failure_left_after_step_control_names_the_energy_momentum_scheme_only
             sim.step()
         assert str(info.value).startswith("induced failure at h = 1e-05")
         assert ("time.scheme = 'energy-momentum'" in str(info.value)) == named, str(info.value)
+    # the straight tube's energy-momentum scheme is this step with its discrete-gradient forces: never told to use itself
+    d = gas_scene(nodes=9, parcels=8, h=1e-5, scheme="energy-momentum")
+    d["time"]["adaptive"] = False
+    sim = Simulation(build_model(scene_of(d)))
+    _fail_at(sim.stepper, {0}, [1e-5])
+    with pytest.raises(SolverError) as info:
+        sim.step()
+    assert str(info.value) == "induced failure at h = 1e-05"

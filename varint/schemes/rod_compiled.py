@@ -309,14 +309,6 @@ def _k_band_jacobian_fd(h, ds, rhoA, inertia, Jd, Kd, g, force, torque, paper, p
     return count
 
 
-def _complex_scratch():
-    """Complex work arrays of :func:`_k_band_jacobian` (built once per FastRodStep)."""
-    c = np.complex128
-    return (np.zeros((5, 3, 3), c), np.zeros((16, 3), c), np.zeros(12, c), np.zeros(12, c), np.zeros((3, 3), c),
-            np.zeros((3, 3), c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c), np.zeros(3, c),
-            np.zeros(3, c))
-
-
 @njit(cache=True, error_model="numpy")
 def _k_floor_ok(dz, z, scale):
     """Every update within ROUNDOFF_BAND of its kind's round-off floor (varint.schemes.newton._within_floor; the rod's

@@ -69,8 +69,12 @@ class Trapezoidal(Scheme):
 class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
     """The midpoint or trapezoidal step of one model (see the module notes); ``action`` is its discrete action."""
 
-    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None, extra_forces=(), depth=0):
+    def __init__(self, model, h, name="midpoint", tol=None, max_iter=None, state=None, extra_forces=(), depth=0,
+                 scheme_name=None):
         tcfg = model.scene.time
+        #: the registered scheme this stepper serves (the straight tube's energy-momentum scheme is this step with its
+        #: discrete-gradient forces): a failure names another scheme only when it is not already that one
+        self.scheme_name = scheme_name or name
         #: step control (docs/theory.md §4b): a step that fails at h is taken as two steps of h/2 (each halved again,
         #: down to h/2**MAX_HALVINGS), then the run returns to h; ``time.adaptive = false`` forbids it
         self.adaptive = bool(tcfg.adaptive)
@@ -308,7 +312,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             return self._step_at_h()
         except SolverError as exc:
             if not self.adaptive or self.depth >= MAX_HALVINGS:
-                raise (exc if self.depth else with_scheme_hint(self.model, exc)) from None
+                raise self._final(exc) from None
             failure = exc
         self.state = start  # (the model's evolving data back to the level: a heating force may have run)
         half = self._half_stepper()
@@ -318,7 +322,7 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             end, r2 = half.step(mid)
         except SolverError:
             self.state = start
-            raise (failure if self.depth else with_scheme_hint(self.model, failure)) from None
+            raise self._final(failure) from None
         new = self._rescaled(end, 2.0, self.h)
         new.n, new.t = start.n + 1, (start.n + 1) * self.h
         self.state = new  # (the setter rebuilds this step for a lattice the half steps changed: open ends)
@@ -327,10 +331,18 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
         return new, StepReport(r1.iterations + r2.iterations, r1.n_residual + r2.n_residual,
                                r1.n_jacobian + r2.n_jacobian, True, halved=True)
 
+    def _final(self, exc):
+        """The failure that ends the run: at the top step of a midpoint or trapezoidal run, with the energy-momentum
+        scheme named where it covers the scene (varint.schemes.limits.with_scheme_hint)."""
+        if self.depth or self.scheme_name == "energy-momentum":
+            return exc
+        return with_scheme_hint(self.model, exc)
+
     def _half_stepper(self):
         if self._half is None:
             self._half = VariationalStepper(self.model, 0.5 * self.h, self.action.name, self.tol, self.max_iter,
-                                            self._state, self.extra_forces, depth=self.depth + 1)
+                                            self._state, self.extra_forces, depth=self.depth + 1,
+                                            scheme_name=self.scheme_name)
             self._half.floating_origin, self._half.rigid_polish = self.floating_origin, self.rigid_polish
         return self._half
 

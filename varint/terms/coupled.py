@@ -1440,6 +1440,6 @@ def label_velocity_map(nodes, Nw, dX, n_nodes):
 def kinetic_metric_of(nodes, Nw, dX, mbar, n_nodes):
     """``(Jx^T diag(mbar) Jx CSR, Jx)``: the fluid's kinetic metric of :func:`fluid_kinetic_metric` from the labels'
     weights (:func:`label_velocity_map`): the one construction, for the modes, the level energy of the coupled tube
-    (varint.run.simulation) and its open ends' (varint.run.open_ends)."""
+    (varint.schemes.monitors) and its open ends' (varint.schemes.open_ends)."""
     Jx = label_velocity_map(nodes, Nw, dX, n_nodes)
     return (Jx.T @ sp.diags(np.repeat(np.asarray(mbar, dtype=np.float64), 3)) @ Jx).tocsr(), Jx
