@@ -129,3 +129,37 @@ def test_open_ends_with_a_barotropic_liquid_and_the_refusals():
     horn = horn.replace("[time]\n", '[time]\nscheme = "energy-momentum"\n')
     with pytest.raises(SceneError, match=r"^time\.scheme: 'energy-momentum' with open fluid ends .* rigid uniform tube"):
         Simulation(build_model(parse_scene(horn)))
+
+
+def test_the_open_mean_value_pressure_s_jacobian_is_exact():
+    """OpenMeanValuePressure's Newton block against central differences of its force f^- in the new level's labels,
+    on the open pipe after 40 steps (parcels entered and left; the piston at its level positions)."""
+    from types import SimpleNamespace
+
+    from varint import parse_scene
+    from varint.terms.open_ends import OpenMeanValuePressure
+
+    text = (EXAMPLES / "open_pipe_gas.toml").read_text().replace("[time]\n", '[time]\nscheme = "energy-momentum"\n')
+    sim = Simulation(build_model(parse_scene(text)))
+    for _ in range(40):
+        sim.step()
+    f = next(x for x in sim.stepper.extra_forces if isinstance(x, OpenMeanValuePressure))
+    t = sim.model.tube
+    ns = t.layout["s"].stop
+    q0 = sim.state.q.copy()
+    q1 = q0 + sim.h * sim.state.v * (1.0 + 0.3 * np.sin(np.arange(len(q0))))  # a compressing and expanding guess
+
+    def force(q):
+        d = SimpleNamespace(tube_q=np.zeros(ns))
+        f.add(SimpleNamespace(q0=q0, q1=q, h=sim.h), d, 0)
+        return d.tube_q
+
+    J = f.jacobian(SimpleNamespace(q0=q0, q1=q1, h=sim.h)).toarray()[:ns, :ns]
+    e = 1e-7 * t.ell_in
+    fd = np.empty_like(J)
+    for j in range(ns):
+        dq = np.zeros_like(q1)
+        dq[j] = e
+        fd[:, j] = (force(q1 + dq) - force(q1 - dq)) / (2 * e)
+    assert np.max(np.abs(force(q1))) > 0  # the correction is not zero on this step
+    assert np.allclose(J, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
