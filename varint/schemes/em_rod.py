@@ -183,6 +183,15 @@ def tip_torque_forces(Db, torque):
     return np.swapaxes(np.cross(w[..., None, :], np.swapaxes(Db, -1, -2)), -1, -2)
 
 
+#: full Newton keeps its factorisation (chord iterations, refreshed on slow contraction) once its update is below this:
+#: there the Jacobian of the last iterate contracts as fast as a fresh one would, at no Jacobian's cost
+FULL_NEWTON_TO = 1e-3
+#: full Newton gives up on a start once an update exceeds this multiple of its smallest one (at least 1e-2): it may
+#: grow before it converges, but by this much it has left the solution's basin and iterating on to max_iter costs a
+#: Jacobian per iteration (the tumbling rod at 10 ms: 40-iteration failures, most of its Jacobians)
+DIVERGED = 1e4
+
+
 def chord_newton(step, z, chord, residual, factor, update, size_of, domain_problem=None):
     """Newton from z for an energy-momentum step (RodEMStep, varint.schemes.em_tube.TubeEMStep): chord iterations on the kept
     factorisation ``step._lu`` (``factor(z)`` makes one; refreshed when the contraction is slower than
@@ -191,6 +200,7 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
     the round-off floor: after the update ``size_of(dz)`` falls below ``step.tol`` it stops when the next update no
     longer shrinks.  ``domain_problem(z)``: why an iterate cannot be evaluated, or None.  Returns (z, iterations)."""
     last = np.inf
+    smallest = np.inf  # the smallest update so far (full Newton's divergence test)
     fresh = False
     stale = 0  # chord iterations since the factorisation was made
     n1 = step.n + 1
@@ -202,7 +212,7 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
         step.stats["residuals"] += 1
         if not np.all(np.isfinite(R)):
             raise SolverError(f"step {n1}: non-finite residual")
-        if step._lu is None or not chord:
+        if step._lu is None or not (chord or last < FULL_NEWTON_TO):
             step._lu = None
             step._lu = factor(z)
             fresh, stale = True, 0
@@ -219,10 +229,14 @@ def chord_newton(step, z, chord, residual, factor, update, size_of, domain_probl
             return z, it  # round-off floor reached: the update no longer shrinks
         if size > last and fresh and chord:
             raise SolverError(f"step {n1}: Newton diverges (update {last:.2e} -> {size:.2e})")
+        smallest = min(smallest, size)
+        if not chord and size > DIVERGED * max(smallest, 1e-2):  # full Newton left its basin: the next start instead
+            raise SolverError(f"step {n1}: Newton diverges (update {smallest:.2e} -> {size:.2e})")
         z = z + dz
         if size < 1e-3 * step.tol:
             return z, it
-        if chord and it > 1 and not fresh and last >= step.tol and (size > step.rate_refresh * last or stale >= 20):
+        if (chord or last < FULL_NEWTON_TO) and it > 1 and not fresh and last >= step.tol and (
+                size > step.rate_refresh * last or stale >= 20):
             step._lu = None  # slow contraction, or 20 chord iterations on one factorisation: refresh the Jacobian
         fresh = False
         last = size
