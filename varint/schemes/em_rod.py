@@ -579,9 +579,11 @@ class RodEMStep:
 
     def step(self):
         """Advance one step; returns the number of Newton iterations (:func:`em_step`: chord Newton from the predictor,
-        the last increment; on failure full Newton from it, from a rigid motion at the level's velocities and from rest;
-        then :func:`halved_step`)."""
-        return em_step(self, (self._predict, self._predict_rigid, self._predict_rest))
+        the last increment; on failure full Newton from a rigid motion at the level's velocities, from the last
+        increment and from rest; then :func:`halved_step`).  The rigid motion first: where the chord attempt fails
+        (the stiff modes unresolved), full Newton converges from it more often (the tumbling rod at h = 10 ms:
+        7 Jacobians and 12 ms per step against 20 and 38 from the last increment first)."""
+        return em_step(self, (self._predict_rigid, self._predict, self._predict_rest))
 
     def _advance(self, z, it):
         """Take Newton's solution z as the step: the held unknowns, the rigid polish, the new level and velocities."""
