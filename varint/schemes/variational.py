@@ -199,6 +199,13 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
 
     def _folded(self, n, problem, what):
         k, text = problem
+        t = self.model.tube
+        if t.eos is not None and not any(f.declaration.name == "shock_capturing" for f in self.model.forces):
+            # a compressible fluid whose labels cross: a compression steepened until the lattice folds, i.e. a shock
+            # forming; no step size resolves it (the exact solution has a discontinuity), the viscosity does (§11a)
+            return SolverError(f"{self._where(n)}: {text} {what}: a shock is forming (the compression steepened until "
+                               "the labels crossed); add a [shock_capturing] section (docs/theory.md §11a), or a "
+                               "smaller time.step if the wave is smooth", step=n, time=n * self.h)
         return SolverError(f"{self._where(n)}: {text} {what}: the step is too large for this motion; "
                            "try a smaller time.step", step=n, time=n * self.h)
 
