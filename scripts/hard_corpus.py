@@ -15,6 +15,7 @@ threshold of a cantilever, not positive below a pinned pipe's divergence, positi
 CPU seconds per step.
 
     python scripts/hard_corpus.py [--short] [--cases a,b] [--steps-scale X] [--list]
+    python scripts/hard_corpus.py --lattice-rates    (the pipes' growth rates from their lattice's modes)
 
 ``--short``: the test-size runs of tests/test_hard_corpus.py.  One process, one core: the runs are sequential.
 """
