@@ -346,6 +346,11 @@ class EndPressures(Force):
                 snb, jcol = 0.5 * (pt.q0[j] + pt.q1[j]), j
             else:  # the piston's midpoint (a velocity inlet has no inlet force: not reached)
                 snb, jcol = t.c0[0], None
+            if not t.has_wall and t.duct.uniform:  # one section everywhere, no end correction (the common case, fast)
+                pb, dv = (t.p_in, 0.0) if which == "inlet" else self._outlet(v, t.duct.A_in, h, True)[:2]
+                A = t.duct.A_in
+                out.append((i, sign * 0.5 * h * pb * A, sign * 0.5 * h * pb * A, {i: sign * 0.5 * A * dv}))
+                continue
             Rbar = 0.5 * (self._R(pt.q0) + self._R(pt.q1))
             A, dAds, nodes, dAdR = section_at(sbar, Rbar, t.ds)
             if which == "inlet":
