@@ -39,10 +39,11 @@ Use::
     fast = FastRodStep(model, h, tol)
     state = fast.step(state)        # a varint.schemes.state.State, as Simulation.step produces
 
-Compilation: the kernels take ~30 s to compile on first use (measured on a loaded 2-core machine), then load from
-numba's cache in 0.2 s.  They inline varint.terms.rod's element kernels, and numba's cache is keyed on *this* file's
-timestamp only: after editing ``k_element`` (or the helpers it inlines) in varint/terms/rod.py, touch this file (or clear
-``varint/__pycache__/rod_step_fast.*``), or a stale compiled copy keeps running.  tests/test_rod_step_fast.py, which
+Compilation: the first step compiles for ~29 s (the tumbling rod, a quiet 2-core machine), then the kernels load from
+numba's cache in 0.2 s.  They call varint.terms.rod's element kernels (k_element, k_rod_gradient, k_step_block: compiled
+once and called, not inlined into each kernel here, which cost 41 s of compilation for the same speed), and numba's
+cache is keyed on *this* file's timestamp only: after editing ``k_element`` (or the helpers it inlines) in
+varint/terms/rod.py, touch this file (or clear its ``__pycache__`` entries), or a stale compiled copy keeps running.  tests/test_rod_step_fast.py, which
 compares the residual and Jacobian with Step's, would catch it.
 """
 

@@ -867,7 +867,7 @@ def _k_dcinvT(w, v, s, out):
     out[2] = v[2] + 0.5 * s * (w[0] * v[1] - w[1] * v[0]) + wv * w[2]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, xib, r1a, r1b, g0, lev_lo, lev_hi, D1, D2,
               M, V):
     """Discrete Lagrangian of one element and its exact gradients; returns (L_e, c), c = h ds mu_e the element's factor.
@@ -956,7 +956,7 @@ def k_element(h, ds, rhoA, inertia, Jd, Kd, g, paper, L0a, L0b, r0a, r0b, xia, x
     return c * P, c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def k_rod_gradient(h, ds, rhoA, inertia, Jd, Kd, g, force, paper, Lam_n, r_n, xi, dr, lev_lo, lev_hi, D1, D2, M, V, e1, e2,
                    value):
     """The rod's D1 (level n) and D2 (level n+1) of L_d, (N+1, 6) each: the element kernels (:func:`k_element`) summed,
@@ -1102,7 +1102,7 @@ def _k_config_column(Lam, r, e, k, eps, La, Lb, ra, rb, C, Lc, w):
         _k_mm(Lc, C, La if k < 6 else Lb)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def k_step_block(h, ds, rhoA, inertia, Jd, Kd, g, paper, Lam_n, r_n, xi, r_1, e, mask, eps, cs, col, out):
     """Element e's Newton block of the step residual: out[:, k] = d(rotated D1 of element e)/d u_k (12 x 12), u = (b_a,
     xi_a, b_b, xi_b), r_1 = r_n + Lambda_n b, by complex step of the analytic gradient (``k_element`` in the chart of
