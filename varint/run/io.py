@@ -550,7 +550,7 @@ def _unit(v):
 def energy_motion_scale(E, kinetic=None):
     """The energy that moves over a run, the scale of its energy error: the largest kinetic energy plus the largest
     change of the potential energy U = E - kinetic.  The internal energy of a gas at rest, a liquid's p V, the
-    potential of a body far above the origin are not part of the motion, and |E(0)| would make any error look small
+    potential of a body far above the origin are not part of the motion, and abs(E(0)) would make any error look small
     (a water-filled hose: p V 20 J against 1.3 J of motion).  0.0 when nothing moves."""
     E = np.asarray(E, dtype=float)
     Kin = np.zeros_like(E) if kinetic is None else np.asarray(kinetic, dtype=float)
