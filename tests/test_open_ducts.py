@@ -306,22 +306,14 @@ def test_windkessel_outlet_against_its_ode():
     assert sim.state.t > 2.5 * tau
 
 
-@pytest.mark.parametrize("fluid", ["gas", "liquid"])
-@pytest.mark.parametrize("outflow", ["pressure", "non-reflecting", "windkessel"])
-def test_balances_close_at_every_step_in_a_rubber_tube(fluid, outflow):
-    """A dynamic wall (linear law), pressure inlet 200 Pa above the outlet's reference: energy, momentum and mass
-    balances close at every step with the outlets' work booked through the end (energy: the midpoint rule's error of a
-    gas's transients, O(h^3) per step for a liquid; measured below 3.2e-9 of the energy that crossed per step).  The
-    liquid's monitor is the step energy: read from the level momenta the wall's midpoint half-impulse of p_ext showed
-    as 2.3 J of kinetic energy at rest (a capability cell caught it: tests/test_capabilities.py)."""
-    gas = fluid == "gas"
-    wk = ", windkessel_R1 = 1e5, windkessel_C = 1e-7, windkessel_R2 = 1e6" if outflow == "windkessel" else ""
-    p_in = 1.0e5 + 200.0 if gas else 200.0
-    text = f"""
+def rubber_scene(gas, nodes, parcels, h, ends):
+    """Air (1 bar) or water (gauge pressures) flowing at 1 m/s into the open rubber tube (a dynamic linear wall, 1 m,
+    radius 1 cm); ``ends``: the rest of the fluid.ends table after s0 and sL (", inflow = ...")."""
+    return f"""
 title = "rubber"
 [tube]
 length = 1.0
-nodes = 41
+nodes = {nodes}
 radius = 0.01
 [wall]
 model = "dynamic"
@@ -335,12 +327,26 @@ model = "{'ideal-gas' if gas else 'incompressible'}"
 density = {1.2 if gas else 1000.0}
 pressure = {1.0e5 if gas else 0.0}
 velocity = 1.0
-parcels = 40
-ends = {{ s0 = "inflow", sL = "outflow", inflow = "pressure", inflow_pressure = {p_in!r}, outflow = "{outflow}"{wk} }}
+parcels = {parcels}
+ends = {{ s0 = "inflow", sL = "outflow"{ends} }}
 [time]
-step = 2e-4
+step = {h!r}
 end = 1.0
 """
+
+
+@pytest.mark.parametrize("fluid", ["gas", "liquid"])
+@pytest.mark.parametrize("outflow", ["pressure", "non-reflecting", "windkessel"])
+def test_balances_close_at_every_step_in_a_rubber_tube(fluid, outflow):
+    """A dynamic wall (linear law), pressure inlet 200 Pa above the outlet's reference: energy, momentum and mass
+    balances close at every step with the outlets' work booked through the end (energy: the midpoint rule's error of a
+    gas's transients, O(h^3) per step for a liquid; measured below 3.2e-9 of the energy that crossed per step).  The
+    liquid's monitor is the step energy: read from the level momenta the wall's midpoint half-impulse of p_ext showed
+    as 2.3 J of kinetic energy at rest (a capability cell caught it: tests/test_capabilities.py)."""
+    gas = fluid == "gas"
+    wk = ", windkessel_R1 = 1e5, windkessel_C = 1e-7, windkessel_R2 = 1e6" if outflow == "windkessel" else ""
+    p_in = 1.0e5 + 200.0 if gas else 200.0
+    text = rubber_scene(gas, 41, 40, 2e-4, f', inflow = "pressure", inflow_pressure = {p_in!r}, outflow = "{outflow}"{wk}')
     sim = simulation(text)
     rec = []
     for _ in range(150):
@@ -374,30 +380,7 @@ def test_open_step_residual_and_jacobian(case):
                           pressure=1.0e5 if gas else 0.0, velocity=20.0 if gas else 1.0, parcels=12, nodes=6,
                           h=1e-4, ends=ends)
     else:
-        text = f"""
-title = "rubber"
-[tube]
-length = 1.0
-nodes = 6
-radius = 0.01
-[wall]
-model = "dynamic"
-law = "linear"
-thickness = 0.001
-density = 1100.0
-youngs_modulus = 1.0e6
-poisson_ratio = 0.45
-[fluid]
-model = "{'ideal-gas' if gas else 'incompressible'}"
-density = {1.2 if gas else 1000.0}
-pressure = {1.0e5 if gas else 0.0}
-velocity = 1.0
-parcels = 12
-ends = {{ s0 = "inflow", sL = "outflow"{ends} }}
-[time]
-step = 1e-4
-end = 1.0
-"""
+        text = rubber_scene(gas, 6, 12, 1e-4, ends)
     sim = simulation(text)
     for _ in range(3):
         sim.step()
