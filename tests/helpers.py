@@ -13,6 +13,19 @@ from varint.scene.standard import liquid_cantilever_scenes
 from varint.scene.text import to_toml
 
 
+#: a dynamic linear rubber wall (2 mm, 2 MPa) as a scene's [wall] section, for the straight tubes of the open-end and
+#: modes tests
+RUBBER_WALL_SECTION = """
+[wall]
+model = "dynamic"
+law = "linear"
+thickness = 0.002
+density = 1100.0
+youngs_modulus = 2.0e6
+poisson_ratio = 0.45
+"""
+
+
 def make(d):
     """Scene dict -> (scene, model)."""
     scene = parse_scene(to_toml(d))

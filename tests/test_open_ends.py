@@ -18,6 +18,7 @@ from varint import parse_scene, run_scene
 from varint.errors import SceneError, SolverError
 from varint.lattice.parcels import parcel_volumes
 from varint.run.io import read_run
+from helpers import RUBBER_WALL_SECTION as RUBBER
 
 
 def scene_text(model="ideal-gas", velocity=20.0, parcels=50, h=1e-4, end=0.05, ends="", extra="", nodes=21,
@@ -254,15 +255,6 @@ def test_open_terms_gradient_and_hessian_against_differences(model, wall):
         assert np.max(np.abs(col[free] - H[free, i])) <= 1e-5 * scale, i
 
 
-RUBBER = """
-[wall]
-model = "dynamic"
-law = "linear"
-thickness = 0.002
-density = 1100.0
-youngs_modulus = 2.0e6
-poisson_ratio = 0.45
-"""
 
 
 def test_open_rubber_tube_steady_flow_stays_steady():

@@ -13,16 +13,8 @@ from varint import parse_scene
 from varint.analysis.modes import scene_modes
 from varint.errors import VarintError
 from varint.exact.waves import dispersion_branches
+from helpers import RUBBER_WALL_SECTION as RUBBER
 
-RUBBER = """
-[wall]
-model = "dynamic"
-law = "linear"
-thickness = 0.002
-density = 1100.0
-youngs_modulus = 2.0e6
-poisson_ratio = 0.45
-"""
 
 
 def water_tube(wall=RUBBER, nodes=41, parcels=80, ends="", extra="", velocity=0.0):
