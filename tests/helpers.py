@@ -26,6 +26,21 @@ poisson_ratio = 0.45
 """
 
 
+def run_record(t, monitors, fields, **attrs):
+    """A run as varint.run.io.read_run returns it, made in memory (the plotting tests draw these)."""
+    return {"time": np.asarray(t, dtype=float), "monitors": monitors, "fields": fields,
+            "attrs": dict({"title": "test"}, **attrs)}
+
+
+def rotations_about_x(a):
+    """(K,) angles -> (K, 3, 3) rotations about x."""
+    c, s = np.cos(a), np.sin(a)
+    R = np.zeros(np.shape(a) + (3, 3))
+    R[..., 0, 0] = 1.0
+    R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2] = c, -s, s, c
+    return R
+
+
 def make(d):
     """Scene dict -> (scene, model)."""
     scene = parse_scene(to_toml(d))

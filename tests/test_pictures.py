@@ -14,16 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import rotations_about_x as _rot_x, run_record as _run
 from varint.scene.standard import gas_scene
 from varint.scene.text import to_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = sorted((ROOT / "examples").glob("*.toml"))
 
-
-def _run(t, monitors, fields, **attrs):
-    return {"time": np.asarray(t, dtype=float), "monitors": monitors, "fields": fields,
-            "attrs": dict({"title": "test"}, **attrs)}
 
 
 def _meshes(fig):
@@ -204,13 +201,6 @@ def test_the_animation_has_a_pressure_colour_bar_gravity_and_its_whole_title():
 
 
 # -- the spinning shaft ------------------------------------------------------------------------------------------------
-
-def _rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(np.shape(a) + (3, 3))
-    R[..., 0, 0] = 1.0
-    R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2] = c, -s, s, c
-    return R
 
 
 def _shaft(amp, whirl, spin=60.0, K=81, n=21):

@@ -11,24 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import rotations_about_x as _rot_x, run_record as _run
 from varint.scene.standard import gas_scene
 from varint.scene.text import to_toml
 
 EPS = np.finfo(float).eps
 
 
-def _run(t, monitors, fields, **attrs):
-    return {"time": np.asarray(t, dtype=float), "monitors": monitors, "fields": fields,
-            "attrs": dict({"title": "test"}, **attrs)}
-
-
-def _rot_x(a):
-    """(K,) angles -> (K, 3, 3) rotations about x."""
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(np.shape(a) + (3, 3))
-    R[..., 0, 0] = 1.0
-    R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2] = c, -s, s, c
-    return R
 
 
 def _shaft(K=51, n=21, amp=1e-4, whirl=20.0, spin=60.0, end=1.0):
