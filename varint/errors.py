@@ -32,11 +32,12 @@ class SceneError(VarintError):
 
 
 class SolverError(VarintError):
-    """Newton failed to converge; the message names step, time, residual and rate."""
+    """Newton failed to converge; the message names step, time, residual and rate.  ``cure``: what the message already
+    names to run it (a scheme or a scene section), or None."""
 
-    def __init__(self, message, step=None, time=None, residual=None, rate=None):
+    def __init__(self, message, step=None, time=None, residual=None, rate=None, cure=None):
         super().__init__(message)
-        self.step, self.time, self.residual, self.rate = step, time, residual, rate
+        self.step, self.time, self.residual, self.rate, self.cure = step, time, residual, rate, cure
 
 
 class OutputError(VarintError):

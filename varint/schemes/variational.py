@@ -205,7 +205,8 @@ class VariationalStepper(OpenEndsStepping, LevelMonitors, Stepper):
             # forming; no step size resolves it (the exact solution has a discontinuity), the viscosity does (§11a)
             return SolverError(f"{self._where(n)}: {text} {what}: a shock is forming (the compression steepened until "
                                "the labels crossed); add a [shock_capturing] section (docs/theory.md §11a), or a "
-                               "smaller time.step if the wave is smooth", step=n, time=n * self.h)
+                               "smaller time.step if the wave is smooth", step=n, time=n * self.h,
+                               cure="shock_capturing")
         return SolverError(f"{self._where(n)}: {text} {what}: the step is too large for this motion; "
                            "try a smaller time.step", step=n, time=n * self.h)
 
