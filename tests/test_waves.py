@@ -121,3 +121,20 @@ def test_sparse_tube_modes_equal_the_dense_ones():
     assert big.tube.nq > DENSE_TUBE_MODES_LIMIT and big.tube.nlam == 0
     f = np.array([m["frequency"] for m in modes(big, count=4)])
     assert np.all(np.abs(f / dense[:4] - 1) < 5e-3)  # the same lowest branch, on a finer lattice
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "energy-momentum"])
+def test_rigid_tube_sound_speed_of_a_barotropic_liquid(scheme):
+    """Periodic rigid tube of a Tait liquid (B = 22 MPa, rho0 = 1000 kg/m^3), 64 parcels per wavelength: standing wave at
+    omega = sqrt(B / rho0) k, the liquid's sound speed at its reference density -- the outside truth for the
+    energy-momentum scheme's barotropic pressure (docs/theory.md §12d)."""
+    k, B, rho0, h = 2 * math.pi, 2.2e7, 1000.0, 5e-6
+    c = math.sqrt(B / rho0)
+    d = gas_scene(nodes=65, parcels=64, wall=False, ends="periodic", h=h, scheme=scheme)
+    d["fluid"] = {"model": "barotropic", "density": rho0, "pressure": 1e5, "bulk_modulus": B, "gamma": 7.0,
+                  "parcels": 64, "ends": {"s0": "periodic", "sL": "periodic"},
+                  "perturbation": [{"field": "pressure", "shape": "cosine", "amplitude": 10.0, "wavelength": 1.0}]}
+    _, model = make(d)
+    sim = Simulation(model)
+    omega = standing_wave_frequency(model, sim, steps=int(3.2 * 2 * math.pi / (c * k) / h), k=k)
+    assert omega / k == pytest.approx(c, rel=5e-4), omega / k / c - 1
