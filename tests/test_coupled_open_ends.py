@@ -18,7 +18,7 @@ import pytest
 
 from varint.exact import pipe_stability as ps
 from varint.analysis.signals import peak_growth_rate
-from varint.errors import SceneError, SolverError
+from varint.errors import SceneError
 from varint.model.model import build_model
 from varint.analysis.modes import scene_modes
 from varint.scene.standard import pipe_scene_text

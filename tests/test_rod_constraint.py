@@ -23,7 +23,6 @@ from varint.lattice.lie import cay
 from varint.terms.rod import pack_level, unpack_level
 
 from helpers import momentum_drift, tip_frequency
-from varint.scene.text import to_toml
 from varint.scene.standard import ROD_SECTION as SECTION, rod_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -12,7 +12,7 @@ import pytest
 
 from varint import Simulation, build_model
 from varint.lattice.lie import cay, cay_inv, dcay_inv
-from varint.terms.rod import EPS_CS, _k_dcinvT, k_element, banded_jacobian
+from varint.terms.rod import _k_dcinvT, k_element, banded_jacobian
 from varint.model.statics import force_jacobian, force_map
 
 from varint.scene.standard import ROD_SECTION as SECTION, rod_scene, solid_section

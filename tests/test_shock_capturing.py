@@ -329,7 +329,7 @@ from varint.terms import tube_potential as T  # noqa: E402
 from varint.lattice.parcels import parcel_derivatives, parcel_volumes  # noqa: E402
 from varint.terms.shock_capturing import SwellingShockCapturing, avf_volume_gradients  # noqa: E402
 
-from varint.scene.standard import RUBBER_WALL, gas_scene  # noqa: E402
+from varint.scene.standard import gas_scene  # noqa: E402
 
 TUBE_LAW_WALL = {"model": "dynamic", "law": "tube-law", "thickness": 1.0e-3, "density": 1522.0,
                  "youngs_modulus": 5.0e6, "poisson_ratio": 0.5, "tension": 3.0}
